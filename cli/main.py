@@ -1,0 +1,242 @@
+"""`vpp plan MESH ...`: plan viewpoints for a mesh file; bad input → one line on stderr, exit 2."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+from typing import Any, NoReturn
+
+from pydantic import ValidationError
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.table import Table
+
+from vpp_core.document import CandidateGenerator, PlanDocument, PlanRequest, SolverSettings, Target
+from vpp_core.errors import VppError
+from vpp_core.mesh import UNITS_TO_MM, load_mesh
+from vpp_core.plan import plan
+from vpp_core.sensor import make_sensor
+from worker.settings import get_settings
+
+EXIT_INPUT = 2
+"""Exit code for anything wrong with the input (files, options, mesh, sensor, limits)."""
+
+
+class InputError(Exception):
+    """A problem with the command line's input, reported as one line and exit code 2."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str) -> NoReturn:
+        self.exit(EXIT_INPUT, f"{self.prog}: error: {message}\n")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of `vpp`."""
+    parser = _Parser(prog="vpp", description="Inspection viewpoint planning (SPEC v1).")
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    p = sub.add_parser("plan", help="plan the fewest viewpoints covering a mesh")
+    p.add_argument("mesh", type=Path, help="mesh file: STL, OBJ, PLY, OFF, GLB, GLTF")
+    p.add_argument("--units", default="mm", choices=sorted(UNITS_TO_MM), help="mesh file units")
+    p.add_argument("--format", help="mesh format if the extension does not tell")
+    p.add_argument("--sensor", type=Path, help="sensor JSON (SPEC §2); default: paper camera")
+    p.add_argument("--resolution", type=float, default=0.18, help="target resolution, mm")
+    p.add_argument("--formulation", default="density", choices=["density", "visibility"])
+    cand = p.add_mutually_exclusive_group()
+    cand.add_argument("--candidates", type=int, default=500, help="candidates to generate")
+    cand.add_argument("--candidates-file", type=Path, help="JSON list of {position, gaze, up?}")
+    p.add_argument("--decimate", type=float, help="generate candidates on this face fraction")
+    p.add_argument("--clearance", type=float, default=20.0, help="least camera-part distance")
+    p.add_argument("--solver", default="milp", choices=["milp", "greedy"])
+    p.add_argument("--time-limit", type=float, default=60.0, help="solver time limit, s")
+    p.add_argument("--gap", type=float, default=0.0, help="relative MIP gap accepted")
+    p.add_argument("--seed", type=int, default=0, help="candidate generator seed")
+    p.add_argument("--threads", type=int, help="threads (default: all cores)")
+    p.add_argument("-o", "--output", type=Path, help="write the plan document (JSON) here")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the `vpp` console script."""
+    args = build_parser().parse_args(argv)
+    try:
+        return run_plan(args)
+    except (VppError, InputError) as exc:
+        detail = exc.detail if isinstance(exc, VppError) else str(exc)
+        print(f"vpp: error: {detail}", file=sys.stderr)
+        return EXIT_INPUT
+    except KeyboardInterrupt:
+        print("vpp: interrupted", file=sys.stderr)
+        return 130
+    except Exception as exc:  # a bug of ours: still one line, unless asked for the trace
+        if os.environ.get("VPP_DEBUG"):
+            raise
+        print(f"vpp: internal error: {type(exc).__name__}: {exc}", file=sys.stderr)
+        return 1
+
+
+def run_plan(args: argparse.Namespace) -> int:
+    """Load, plan, print the summary and write the document."""
+    settings = get_settings()
+    request = _request(args)
+    start = time.perf_counter()
+    data = _read(args.mesh, settings.max_upload_bytes)
+    fmt = args.format or args.mesh.suffix.lstrip(".") or "stl"
+    part = load_mesh(data, fmt, args.units, max_faces=settings.max_faces)
+    load_s = time.perf_counter() - start
+    with _progress(args.quiet) as report:
+        doc = plan(
+            part,
+            request,
+            limits=settings.limits(),
+            threads=args.threads or settings.threads,
+            progress=report,
+            load_s=load_s,
+        )
+    Console().print(summary(doc))
+    if args.output:
+        _write(args.output, doc.model_dump_json(indent=1))
+        print(f"plan written to {args.output}")
+    return 0
+
+
+def _request(args: argparse.Namespace) -> PlanRequest:
+    """The plan request from the command line options."""
+    try:
+        sensor = make_sensor(_read_json(args.sensor) if args.sensor else None)
+        candidates: Any = (
+            _read_json(args.candidates_file)
+            if args.candidates_file
+            else CandidateGenerator(
+                count=args.candidates,
+                seed=args.seed,
+                decimate=args.decimate,
+                clearance_mm=args.clearance,
+            )
+        )
+        return PlanRequest(
+            sensor=sensor,
+            target=Target(resolution_mm=args.resolution, formulation=args.formulation),
+            candidates=candidates,
+            solver=SolverSettings(
+                name=args.solver, time_limit_s=args.time_limit, mip_rel_gap=args.gap
+            ),
+        )
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        where = ".".join(str(p) for p in err["loc"])
+        raise InputError(f"{where}: {err['msg']}") from None
+
+
+def _read(path: Path, max_bytes: int) -> bytes:
+    """File bytes, or InputError when missing, unreadable or too large."""
+    try:
+        size = path.stat().st_size
+        if size > max_bytes:
+            raise InputError(
+                f"{path}: {size} bytes exceed the limit of {max_bytes} (VPP_MAX_UPLOAD_BYTES)"
+            )
+        return path.read_bytes()
+    except OSError as exc:
+        raise InputError(f"{path}: {exc.strerror or exc}") from None
+
+
+def _read_json(path: Path) -> Any:
+    """Parsed JSON of a small file, or InputError."""
+    try:
+        return json.loads(_read(path, 64 * 2**20))
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: not valid JSON ({exc})") from None
+
+
+def _write(path: Path, text: str) -> None:
+    """Write text, or InputError when the path cannot be written."""
+    try:
+        path.write_text(text)
+    except OSError as exc:
+        raise InputError(f"{path}: {exc.strerror or exc}") from None
+
+
+class _progress:
+    """Rich progress bars on stderr, one per stage; a no-op when quiet or not a terminal."""
+
+    def __init__(self, quiet: bool) -> None:
+        console = Console(stderr=True)
+        self.bars = (
+            None
+            if quiet
+            else Progress(
+                TextColumn("{task.description:<10}"),
+                BarColumn(),
+                MofNCompleteColumn(),
+                TimeElapsedColumn(),
+                console=console,
+                transient=True,
+            )
+        )
+        self.tasks: dict[str, Any] = {}
+
+    def __enter__(self) -> _progress:
+        if self.bars:
+            self.bars.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self.bars:
+            self.bars.stop()
+
+    def __call__(self, stage: str, done: int, total: int) -> None:
+        if not self.bars:
+            return
+        for name, task in self.tasks.items():
+            if name != stage:
+                self.bars.update(task, completed=self.bars.tasks[task].total)
+        if stage not in self.tasks:
+            self.tasks[stage] = self.bars.add_task(stage, total=total)
+        self.bars.update(self.tasks[stage], completed=done)
+
+
+def summary(doc: PlanDocument) -> Table:
+    """The short summary table printed on stdout."""
+    m, s, t = doc.metrics, doc.solver, doc.timings_s
+    table = Table(title=f"vpp plan — mesh {doc.mesh.id[:12]} ({doc.mesh.faces} faces)")
+    table.add_column("item")
+    table.add_column("value", justify="right")
+    rows = [
+        ("viewpoints", f"{len(doc.viewpoints)} of {len(doc.candidates)} candidates"),
+        (
+            "solver",
+            f"{s.name} {s.status}, objective {s.objective:g}, bound {_g(s.bound)}, gap {_g(s.gap)}",
+        ),
+        ("coverage (area)", f"{m.coverage.area:.2%} (max {m.coverage.max_area:.2%})"),
+        ("coverage (faces)", f"{m.coverage.faces:.2%} (max {m.coverage.max_faces:.2%})"),
+        (
+            f"resolution ≤ {doc.target.resolution_mm:g} mm (area)",
+            f"{m.resolution.met_area:.2%} (max {m.resolution.max_met_area:.2%})",
+        ),
+        ("median resolution", f"{_g(m.resolution.median_mm)} mm"),
+        ("uncoverable faces", f"{doc.uncoverable.faces} ({doc.uncoverable.area_mm2:.4g} mm²)"),
+        (
+            "rays",
+            f"{doc.rays.pixels:.3g} pixels, {doc.rays.cast:.3g} cast "
+            f"at {doc.rays.cast_per_s / 1e6:.1f} Mrays/s",
+        ),
+        ("time per stage, s", " ".join(f"{k} {v:.2f}" for k, v in t.model_dump().items())),
+    ]
+    for row in rows:
+        table.add_row(*row)
+    return table
+
+
+def _g(x: float | None) -> str:
+    """Compact number or '-'."""
+    return "-" if x is None else f"{x:.4g}"
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,395 @@
+"""Set cover (SPEC §4): OR-Library optima, brute force on real coefficients, reductions, errors."""
+
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+
+import highspy
+import numpy as np
+import pytest
+import scipy.sparse as sp
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from vpp_core import setcover
+from vpp_core.errors import SolverError
+from vpp_core.orlib import parse_orlib
+from vpp_core.setcover import (
+    CoverResult,
+    greedy_cover,
+    is_cover,
+    remove_redundant,
+    solve_cover,
+)
+
+ORLIB = Path(__file__).resolve().parents[1].parent / "shared/data/orlib-scp"
+ORLIB_EXACT = [f"scp4{i}" for i in range(1, 11)] + [f"scp5{i}" for i in range(1, 11)]
+
+
+def orlib_instance(name: str) -> tuple[sp.csr_array, np.ndarray, float]:
+    """A, costs and the proven optimum of an OR-Library instance; skip when the data is absent."""
+    path = ORLIB / f"{name}.txt"
+    if not path.is_file() or not (ORLIB / "optima.csv").is_file():
+        pytest.skip(f"OR-Library data not found at {ORLIB} (shared/data/orlib-scp)")
+    with (ORLIB / "optima.csv").open(newline="") as fh:
+        optima = {r["instance"]: r for r in csv.DictReader(fh)}
+    assert optima[name]["optimal_proven"] == "true"
+    A, costs = parse_orlib(path.read_text())
+    return A, costs, float(optima[name]["best_known"])
+
+
+def brute_force(dense: np.ndarray, costs: np.ndarray) -> float:
+    """Minimum cost over all 2^N column subsets that cover every row (inf when none does)."""
+    n = dense.shape[1]
+    subsets = ((np.arange(1 << n)[:, None] >> np.arange(n)) & 1).astype(np.float64)
+    ok = np.all(dense @ subsets.T >= 1.0 - 1e-9, axis=0)
+    return float((subsets[ok] @ costs).min()) if ok.any() else math.inf
+
+
+def random_instance(seed: int, m: int = 30, n: int = 12) -> tuple[np.ndarray, np.ndarray | None]:
+    """Dense (m, n) real coverage in (0, 1] with every row coverable, and costs (n,) or None."""
+    rng = np.random.default_rng(seed)
+    if seed % 3 == 0:  # quantised levels: exact sums such as 1/3 + 1/3 + 1/3 and 0.25 + 0.75
+        vals = rng.choice([0.25, 1 / 3, 0.5, 0.75, 1.0], size=(m, n))
+    else:
+        vals = rng.uniform(0.05, 1.0, size=(m, n))
+    dense = np.where(rng.random((m, n)) < 0.3, vals, 0.0)
+    for i in np.flatnonzero(dense.sum(axis=1) < 1.0):
+        dense[i, rng.integers(n)] = 1.0
+    costs = [None, rng.integers(1, 6, n).astype(np.float64), rng.uniform(0.5, 3.0, n)][seed % 3]
+    return dense, costs
+
+
+def unit(costs: np.ndarray | None, n: int) -> np.ndarray:
+    """Costs, or all ones when None."""
+    return np.ones(n) if costs is None else costs
+
+
+# ---------------------------------------------------------------------------- OR-Library
+
+
+@pytest.mark.parametrize("name", ORLIB_EXACT)
+def test_orlib_milp_reaches_proven_optimum(name: str) -> None:
+    A, costs, optimum = orlib_instance(name)
+    res = solve_cover(A, costs, time_limit=60.0)
+    assert res.status == "optimal"
+    assert res.objective == optimum
+    assert res.bound == optimum and res.gap == 0.0
+    assert is_cover(A, res.selected)
+    assert costs[res.selected].sum() == res.objective
+    assert np.all(np.diff(res.selected) > 0) and res.selected.dtype == np.int64
+    assert (res.rows, res.cols) == A.shape
+
+
+@pytest.mark.parametrize("name", ORLIB_EXACT)
+def test_orlib_greedy_is_a_cover_no_better_than_optimum(name: str) -> None:
+    A, costs, optimum = orlib_instance(name)
+    sel = greedy_cover(A, costs)
+    assert is_cover(A, sel)
+    assert costs[sel].sum() >= optimum
+    assert costs[sel].sum() <= 1.25 * optimum  # sanity: the greedy is a decent heuristic here
+    res = solve_cover(A, costs, method="greedy")
+    assert (res.status, res.bound, res.gap, res.solver) == ("heuristic", None, None, "greedy")
+    np.testing.assert_array_equal(res.selected, sel)
+
+
+def test_orlib_time_limit_returns_verified_incumbent_and_valid_bound() -> None:
+    A, costs, optimum = orlib_instance("scpnre1")  # HiGHS cannot close this in 0.5 s
+    res = solve_cover(A, costs, time_limit=0.5)
+    assert res.status == "time_limit"
+    assert is_cover(A, res.selected)
+    assert res.bound is not None and res.gap is not None
+    assert res.bound <= optimum <= res.objective
+    assert res.gap == pytest.approx((res.objective - res.bound) / res.objective)
+    assert res.time_s < 5.0
+
+
+def test_time_limit_spent_before_highs_returns_greedy() -> None:
+    A, costs, _ = orlib_instance("scp41")
+    res = solve_cover(A, costs, time_limit=1e-9)
+    assert res.status == "time_limit"
+    np.testing.assert_array_equal(res.selected, greedy_cover(A, costs))
+    assert res.bound is not None and 0.0 < res.bound < res.objective
+
+
+def test_orlib_gap_limit_is_not_reported_as_optimal() -> None:
+    A, costs, optimum = orlib_instance("scp48")  # greedy 525, optimum 492, root bound ~489
+    res = solve_cover(A, costs, mip_rel_gap=0.2)
+    assert res.status == "gap_limit"
+    assert res.bound is not None and res.gap is not None
+    assert res.bound <= optimum <= res.objective
+    assert 0.0 < res.gap <= 0.2
+
+
+def test_threads_option_can_change_between_calls() -> None:
+    A, costs, optimum = orlib_instance("scp41")
+    for threads in (1, 2, 1):
+        assert solve_cover(A, costs, threads=threads).objective == optimum
+
+
+# ---------------------------------------------------------------------------- brute force
+
+
+@pytest.mark.parametrize("seed", range(36))
+def test_milp_equals_brute_force_on_real_coefficients(seed: int) -> None:
+    dense, costs = random_instance(seed)
+    best = brute_force(dense, unit(costs, dense.shape[1]))
+    res = solve_cover(sp.csr_array(dense), costs)
+    assert res.status == "optimal" and res.gap == 0.0
+    assert res.objective == pytest.approx(best, abs=1e-6)
+    assert res.bound is not None and res.bound <= res.objective
+    assert is_cover(sp.csr_array(dense), res.selected)
+
+
+@pytest.mark.parametrize("seed", range(36))
+def test_greedy_is_irredundant_cover_no_better_than_brute_force(seed: int) -> None:
+    dense, costs = random_instance(seed)
+    A = sp.csr_array(dense)
+    sel = greedy_cover(A, costs)
+    assert is_cover(A, sel)
+    assert unit(costs, A.shape[1])[sel].sum() >= brute_force(dense, unit(costs, A.shape[1])) - 1e-9
+    for k in range(sel.size):
+        assert not is_cover(A, np.delete(sel, k)), "greedy left a redundant column"
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    m=st.integers(1, 40),
+    n=st.integers(1, 10),
+    density=st.floats(0.05, 0.9),
+)
+def test_property_greedy_and_milp_on_random_covers(
+    seed: int, m: int, n: int, density: float
+) -> None:
+    rng = np.random.default_rng(seed)
+    dense = np.where(rng.random((m, n)) < density, rng.uniform(0.01, 1.0, (m, n)), 0.0)
+    costs = rng.uniform(0.1, 5.0, n)
+    best = brute_force(dense, costs)
+    A = sp.csr_array(dense)
+    if math.isinf(best):
+        with pytest.raises(SolverError):
+            solve_cover(A, costs)
+        return
+    sel = greedy_cover(A, costs)
+    assert is_cover(A, sel) and costs[sel].sum() >= best - 1e-9
+    res = solve_cover(A, costs)
+    assert res.status == "optimal"
+    assert res.objective == pytest.approx(best, abs=1e-6)
+
+
+# ---------------------------------------------------------------------------- reductions
+
+
+def test_duplicate_rows_are_dropped_without_changing_the_optimum() -> None:
+    dense, costs = random_instance(4)
+    base = solve_cover(sp.csr_array(dense), costs)
+    rng = np.random.default_rng(7)
+    rows = np.concatenate([np.arange(dense.shape[0]), rng.integers(0, dense.shape[0], 50)])
+    doubled = sp.csr_array(dense[rng.permutation(rows)])
+    res = solve_cover(doubled, costs)
+    assert res.rows == dense.shape[0] < doubled.shape[0]
+    assert res.objective == pytest.approx(base.objective, abs=1e-9)
+    assert res.status == "optimal" and is_cover(doubled, res.selected)
+
+
+def test_near_duplicate_rows_are_kept() -> None:
+    row = np.array([0.5, 0.5, 0.0, 1.0])
+    dense = np.vstack([row, row, np.nextafter(row, 2.0) * (row > 0), row[[1, 0, 2, 3]]])
+    res = solve_cover(sp.csr_array(np.minimum(dense, 1.0)))
+    assert res.rows == 2  # rows 0 and 1 merge; the 1-ulp row stays; row 3 equals row 0
+
+
+def test_unique_rows_matches_exact_reference() -> None:
+    rng = np.random.default_rng(3)
+    base = np.where(rng.random((40, 9)) < 0.4, rng.choice([0.5, 1.0], (40, 9)), 0.0)
+    dense = base[rng.integers(0, 40, 400)]
+    A = sp.csr_array(dense)
+    seen: dict[bytes, int] = {}
+    for i, r in enumerate(dense):
+        seen.setdefault(r.tobytes(), i)
+    np.testing.assert_array_equal(setcover._unique_rows(A), sorted(seen.values()))
+
+
+# ---------------------------------------------------------------------------- errors, edges
+
+
+def test_uncoverable_rows_raise_solver_error_with_count() -> None:
+    dense = np.array([[1.0, 0.0], [0.4, 0.5], [0.3, 0.3], [0.0, 1.0]])
+    for method in ("milp", "greedy"):
+        with pytest.raises(SolverError, match=r"\b2 of 4 rows\b"):
+            solve_cover(sp.csr_array(dense), method=method)
+    with pytest.raises(SolverError):
+        greedy_cover(sp.csr_array(dense))
+    with pytest.raises(SolverError):
+        solve_cover(sp.csr_array((3, 0)))
+
+
+def test_row_sum_within_tolerance_is_coverable() -> None:
+    dense = np.array([[0.5, 0.5 - 2e-10, 0.0], [0.0, 0.0, 1.0]])
+    res = solve_cover(sp.csr_array(dense))
+    np.testing.assert_array_equal(res.selected, [0, 1, 2])
+    assert is_cover(sp.csr_array(dense), res.selected)
+    assert not is_cover(sp.csr_array(dense), res.selected, tol=1e-12)
+
+
+def test_zero_rows_give_empty_optimal_selection() -> None:
+    res = solve_cover(sp.csr_array((0, 5)))
+    assert isinstance(res, CoverResult)
+    assert res.selected.shape == (0,) and res.selected.dtype == np.int64
+    assert (res.status, res.objective, res.rows, res.cols) == ("optimal", 0.0, 0, 5)
+
+
+def test_costs_change_the_optimum() -> None:
+    A = sp.csr_array(np.array([[1.0, 1.0, 0.0], [1.0, 0.0, 1.0]]))
+    np.testing.assert_array_equal(solve_cover(A).selected, [0])
+    np.testing.assert_array_equal(solve_cover(A, np.array([5.0, 1.0, 1.0])).selected, [1, 2])
+    np.testing.assert_array_equal(greedy_cover(A, np.array([5.0, 1.0, 1.0])), [1, 2])
+
+
+@pytest.mark.parametrize(
+    "costs", [np.array([1.0, 0.0]), np.array([1.0, -1.0]), np.array([1.0, np.nan]), np.ones(3)]
+)
+def test_bad_costs_raise(costs: np.ndarray) -> None:
+    with pytest.raises(SolverError):
+        solve_cover(sp.csr_array(np.eye(2)), costs)
+
+
+@pytest.mark.parametrize("value", [1.5, -0.5, np.inf, np.nan])
+def test_bad_coefficients_raise(value: float) -> None:
+    with pytest.raises(SolverError):
+        solve_cover(sp.csr_array(np.array([[1.0, value]])))
+
+
+def test_bad_options_raise() -> None:
+    A = sp.csr_array(np.eye(2))
+    with pytest.raises(ValueError):
+        solve_cover(A, method="simplex")
+    with pytest.raises(ValueError):
+        solve_cover(A, time_limit=0.0)
+    with pytest.raises(ValueError):
+        solve_cover(A, mip_rel_gap=-0.1)
+
+
+def test_partial_coverage_needs_several_columns() -> None:
+    A = sp.csr_array(np.array([[0.5, 0.5, 0.4, 0.0], [0.0, 0.6, 0.3, 1.0]]))
+    assert not is_cover(A, np.array([0]))
+    assert is_cover(A, np.array([0, 1, 3]))
+    assert not is_cover(A, np.array([1, 2]))  # 0.9 < 1
+    res = solve_cover(A)
+    assert res.objective == 3.0 and is_cover(A, res.selected)
+    assert res.selected.tolist() == [0, 1, 3]
+
+
+def test_greedy_ties_pick_lowest_index_and_removal_keeps_it() -> None:
+    A = sp.csr_array(np.ones((3, 4)))
+    np.testing.assert_array_equal(greedy_cover(A), [0])
+    np.testing.assert_array_equal(remove_redundant(A, np.arange(4)), [0])
+
+
+def test_remove_redundant_drops_expensive_first() -> None:
+    A = sp.csr_array(np.array([[1.0, 1.0, 0.0], [1.0, 1.0, 1.0]]))
+    np.testing.assert_array_equal(remove_redundant(A, np.array([0, 1, 2])), [0])
+    np.testing.assert_array_equal(
+        remove_redundant(A, np.array([0, 1]), np.array([3.0, 1.0, 1.0])), [1]
+    )
+    with pytest.raises(ValueError):
+        remove_redundant(A, np.array([2]))
+
+
+# ---------------------------------------------------------------------------- status truth
+
+TINY = sp.csr_array(np.array([[1.0, 0.0, 1.0], [1.0, 0.0, 1.0], [0.0, 1.0, 1.0]]))
+TINY_COSTS = np.array([1.0, 1.0, 3.0])  # optimum {0, 1} = 2, also the greedy's answer
+
+
+def fake_highs(monkeypatch: pytest.MonkeyPatch, sel: list[int], status: str, bound: float) -> None:
+    """Make solve_cover see HiGHS return `sel` with model `status` and dual `bound`."""
+    outcome = setcover._MipOutcome(
+        np.array(sel, dtype=np.int64), getattr(highspy.HighsModelStatus, status), bound
+    )
+    monkeypatch.setattr(setcover, "_run_highs", lambda *args, **kwargs: outcome)
+
+
+def test_infeasible_highs_solution_is_repaired_and_not_optimal(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    fake_highs(monkeypatch, [0], "kOptimal", 2.0)
+    res = solve_cover(TINY, TINY_COSTS)
+    assert res.selected.tolist() == [0, 1] and is_cover(TINY, res.selected)
+    assert res.status == "heuristic"
+
+
+def test_open_gap_with_model_optimal_is_gap_limit(monkeypatch: pytest.MonkeyPatch) -> None:
+    fake_highs(monkeypatch, [0, 1], "kOptimal", 1.0)
+    res = solve_cover(TINY, TINY_COSTS)
+    assert (res.status, res.bound, res.gap) == ("gap_limit", 1.0, 0.5)
+
+
+def test_integer_costs_round_the_bound_up(monkeypatch: pytest.MonkeyPatch) -> None:
+    fake_highs(monkeypatch, [0, 1], "kOptimal", 1.2)
+    res = solve_cover(TINY, TINY_COSTS)
+    assert (res.status, res.bound, res.gap) == ("optimal", 2.0, 0.0)
+
+
+def test_large_integer_costs_need_the_gap_closed_exactly(monkeypatch: pytest.MonkeyPatch) -> None:
+    fake_highs(monkeypatch, [0, 1], "kOptimal", 2e7 - 1)
+    res = solve_cover(TINY, TINY_COSTS * 1e7)
+    assert (res.status, res.bound, res.objective) == ("gap_limit", 2e7 - 1, 2e7)
+
+
+def test_real_costs_do_not_round_the_bound(monkeypatch: pytest.MonkeyPatch) -> None:
+    fake_highs(monkeypatch, [0, 1], "kOptimal", 2.0)
+    res = solve_cover(TINY, TINY_COSTS + 0.1)
+    assert res.status == "gap_limit" and res.bound == 2.0
+
+
+def test_worse_highs_incumbent_loses_to_greedy(monkeypatch: pytest.MonkeyPatch) -> None:
+    fake_highs(monkeypatch, [2], "kTimeLimit", 1.5)
+    res = solve_cover(TINY, TINY_COSTS)
+    assert (res.selected.tolist(), res.status, res.objective) == ([0, 1], "time_limit", 2.0)
+
+
+# ---------------------------------------------------------------------------- OR-Library parser
+
+
+def test_parse_orlib_small_text_any_line_breaks() -> None:
+    text = "3 4\n 2 1\n 3 1 \n 1\n1 2 3\n 4 2\n 2 3"
+    A, costs = parse_orlib(text)
+    np.testing.assert_array_equal(costs, [2, 1, 3, 1])
+    expected = np.array([[1, 0, 0, 0], [0, 0, 1, 1], [0, 1, 1, 0]], dtype=np.float64)
+    np.testing.assert_array_equal(A.toarray(), expected)
+    assert A.dtype == np.float64 and costs.dtype == np.float64
+
+
+def test_parse_orlib_repeated_column_counts_once() -> None:
+    A, _ = parse_orlib("1 2  1 1  2 2 2")
+    np.testing.assert_array_equal(A.toarray(), [[0.0, 1.0]])
+
+
+@pytest.mark.parametrize(
+    "text",
+    [
+        "",
+        "3",
+        "2 2 1 1 1 1",  # second row missing
+        "1 2 1 1 1 3",  # column 3 > n
+        "1 2 1 1 1 0",  # column 0 (ids are 1-based)
+        "1 2 1 1 1 1 7",  # trailing number
+        "1 2 1 x 1 1",  # not a number
+        "1 2 1 1 1.5 1",  # fractional count
+        "1 2 1 nan 1 1",  # cost not finite
+    ],
+)
+def test_parse_orlib_rejects_malformed_text(text: str) -> None:
+    with pytest.raises(SolverError):
+        parse_orlib(text)
+
+
+def test_parse_orlib_real_file_shape() -> None:
+    A, costs, _ = orlib_instance("scp41")
+    assert A.shape == (200, 1000) and costs.shape == (1000,)
+    assert set(np.unique(A.data)) == {1.0}
+    assert A.nnz == 4009  # sum of the 200 row counts in scp41.txt

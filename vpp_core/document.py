@@ -1,0 +1,156 @@
+"""The plan request and the plan document (SPEC §8): the contract clients and checks read."""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from vpp_core.metrics import Metrics
+from vpp_core.sensor import Sensor
+
+Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class Target(_Strict):
+    """Required spatial resolution r̄ (mm) and the covering formulation."""
+
+    resolution_mm: float = Field(0.18, gt=0, le=1e4)
+    formulation: Literal["density", "visibility"] = "density"
+
+
+class CandidateGenerator(_Strict):
+    """Settings of the default generator (SPEC §2)."""
+
+    count: int = Field(500, ge=1, description="candidates wanted (fewer if some are dropped)")
+    seed: int = Field(0, ge=0)
+    decimate: float | None = Field(None, gt=0, le=1, description="fraction of faces kept")
+    clearance_mm: float = Field(20.0, ge=0, description="least camera distance to the part")
+
+
+class ViewpointIn(_Strict):
+    """An explicit candidate: camera centre and gaze (mm, mesh frame); `up` optional."""
+
+    position: Vec3
+    gaze: Vec3
+    up: Vec3 | None = None
+
+
+class SolverSettings(_Strict):
+    """Set-cover solver: exact MILP (HiGHS) or greedy with redundancy removal."""
+
+    name: Literal["milp", "greedy"] = "milp"
+    time_limit_s: float = Field(60.0, gt=0, le=86_400)
+    mip_rel_gap: float = Field(0.0, ge=0, lt=1)
+
+
+class PlanRequest(_Strict):
+    """Everything a plan depends on besides the mesh."""
+
+    sensor: Sensor = Sensor()
+    target: Target = Target()
+    candidates: CandidateGenerator | list[ViewpointIn] = CandidateGenerator()
+    solver: SolverSettings = SolverSettings()
+
+
+class MeshInfo(BaseModel):
+    """The planned mesh: content id, faces, area of counted faces (mm²)."""
+
+    id: str
+    faces: int
+    area_mm2: float
+    counted_faces: int
+    warnings: list[str]
+
+
+class CandidateOut(BaseModel):
+    """A candidate pose (mm)."""
+
+    id: int
+    position: list[float]
+    gaze: list[float]
+    up: list[float]
+
+
+class ViewpointOut(CandidateOut):
+    """A selected pose with its 4×4 camera-to-world matrix (columns x, y, z, position)."""
+
+    camera_to_world: list[list[float]]
+
+
+class CandidateInfo(BaseModel):
+    """Where the candidates came from."""
+
+    source: Literal["generated", "explicit"]
+    requested: int
+    generated: int
+    dropped: int = 0
+    spacing_mm: float | None = None
+    planning_faces: int | None = None
+    seed: int | None = None
+    decimate: float | None = None
+
+
+class SolverOut(BaseModel):
+    """How the cover was found and how good it is proven to be."""
+
+    name: str
+    status: str
+    objective: float
+    bound: float | None
+    gap: float | None
+    time_s: float
+    rows: int
+    cols: int
+
+
+class Uncoverable(BaseModel):
+    """Counted faces that no candidate sees."""
+
+    faces: int
+    area_mm2: float
+    ids: list[int]
+
+
+class Timings(BaseModel):
+    """Wall seconds per stage."""
+
+    load: float = 0.0
+    candidates: float = 0.0
+    trace: float = 0.0
+    matrices: float = 0.0
+    solve: float = 0.0
+    metrics: float = 0.0
+
+
+class RaysInfo(BaseModel):
+    """Ray tracing figures: pixel rays of all candidates, rays actually cast, valid hits."""
+
+    backend: str
+    per_view: int
+    pixels: int
+    cast: int
+    valid: int
+    cast_per_s: float
+
+
+class PlanDocument(BaseModel):
+    """The plan (SPEC §8); extra fields beyond the spec's are welcome, its names are fixed."""
+
+    format: Literal["vpp-plan/1"] = "vpp-plan/1"
+    mesh: MeshInfo
+    sensor: Sensor
+    target: Target
+    candidates: list[CandidateOut]
+    candidate_info: CandidateInfo
+    viewpoints: list[ViewpointOut]
+    tour_length_mm: float
+    solver: SolverOut
+    metrics: Metrics
+    uncoverable: Uncoverable
+    rays: RaysInfo
+    timings_s: Timings

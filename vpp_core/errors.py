@@ -1,0 +1,51 @@
+"""The one error hierarchy of the project; shells map it to exit codes and problem+json.
+
+VppError                 anything the caller can fix by changing the input
+├── MeshError            the file is not a usable triangle mesh (empty, corrupt, NaN, bad index)
+├── SensorError          the camera specification is nonsense (fov >= 180, near >= far, ...)
+├── ViewpointError       a viewpoint is malformed (zero gaze, up parallel to gaze, NaN)
+├── LimitError           the request exceeds a configured limit (faces, candidates, rays)
+└── SolverError          the set cover cannot be solved (no coverable face, infeasible model)
+"""
+
+from __future__ import annotations
+
+
+class VppError(Exception):
+    """Base of all input errors; `title` is a short class name, `detail` the one-line reason."""
+
+    title = "Invalid input"
+
+    def __init__(self, detail: str) -> None:
+        super().__init__(detail)
+        self.detail = detail
+
+
+class MeshError(VppError):
+    """The mesh bytes do not hold a usable triangle mesh."""
+
+    title = "Invalid mesh"
+
+
+class SensorError(VppError):
+    """The sensor specification is invalid."""
+
+    title = "Invalid sensor"
+
+
+class ViewpointError(VppError):
+    """A viewpoint (position, gaze, up) is invalid."""
+
+    title = "Invalid viewpoint"
+
+
+class LimitError(VppError):
+    """The request exceeds a configured limit."""
+
+    title = "Limit exceeded"
+
+
+class SolverError(VppError):
+    """The covering problem cannot be solved as posed."""
+
+    title = "Unsolvable cover"

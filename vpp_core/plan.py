@@ -1,0 +1,247 @@
+"""The pipeline, stage by stage: part → candidates → R → S (or V) → cover → plan document."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+
+import numpy as np
+
+from vpp_core.candidates import GeneratorSettings, generate
+from vpp_core.density import CoverModel, cover_model
+from vpp_core.document import (
+    CandidateGenerator,
+    CandidateInfo,
+    CandidateOut,
+    MeshInfo,
+    PlanDocument,
+    PlanRequest,
+    RaysInfo,
+    SolverOut,
+    SolverSettings,
+    Timings,
+    Uncoverable,
+    ViewpointIn,
+    ViewpointOut,
+)
+from vpp_core.errors import LimitError
+from vpp_core.mesh import Part
+from vpp_core.metrics import evaluate
+from vpp_core.pose import Viewpoints, make_viewpoints
+from vpp_core.raytrace import RayBackend, Trace, make_backend, trace_counts
+from vpp_core.setcover import CoverResult, solve_cover
+from vpp_core.tour import path_length, visiting_order
+
+Progress = Callable[[str, int, int], None]
+"""progress(stage, done, total): called as stages start and as viewpoints are traced."""
+
+
+@dataclass(frozen=True)
+class Limits:
+    """Caps on the work one plan may ask for."""
+
+    max_candidates: int = 5_000
+    max_rays: int = 20_000_000_000
+
+
+def candidates_for(
+    part: Part, request: PlanRequest, backend: RayBackend
+) -> tuple[Viewpoints, CandidateInfo]:
+    """The request's candidates: generated (default generator) or the explicit list."""
+    spec = request.candidates
+    if isinstance(spec, CandidateGenerator):
+        settings = GeneratorSettings(spec.count, spec.seed, spec.decimate, spec.clearance_mm)
+        gen = generate(part, request.sensor, settings, backend)
+        info = CandidateInfo(
+            source="generated",
+            requested=spec.count,
+            generated=len(gen.views),
+            dropped=gen.dropped,
+            spacing_mm=gen.spacing_mm,
+            planning_faces=gen.planning_faces,
+            seed=spec.seed,
+            decimate=spec.decimate,
+        )
+        return gen.views, info
+    return explicit_viewpoints(spec), CandidateInfo(
+        source="explicit", requested=len(spec), generated=len(spec)
+    )
+
+
+def explicit_viewpoints(items: list[ViewpointIn]) -> Viewpoints:
+    """Viewpoints from explicit {position, gaze, up?} items (mm)."""
+    nan = [np.nan] * 3
+    return make_viewpoints(
+        np.array([v.position for v in items]).reshape(-1, 3),
+        np.array([v.gaze for v in items]).reshape(-1, 3),
+        np.array([v.up if v.up is not None else nan for v in items]).reshape(-1, 3),
+    )
+
+
+def check_limits(n_candidates: int, n_pixels: int, limits: Limits) -> None:
+    """Raise LimitError when the candidates or the rays exceed the limits."""
+    if n_candidates > limits.max_candidates:
+        raise LimitError(f"{n_candidates} candidates exceed the limit of {limits.max_candidates}")
+    if n_candidates * n_pixels > limits.max_rays:
+        raise LimitError(
+            f"{n_candidates} candidates × {n_pixels} pixels = {n_candidates * n_pixels} rays "
+            f"exceed the limit of {limits.max_rays}"
+        )
+
+
+def solve(model: CoverModel, settings: SolverSettings, threads: int | None = None) -> CoverResult:
+    """Solve the covering rows with the requested solver settings."""
+    return solve_cover(
+        model.matrix,
+        method=settings.name,
+        time_limit=settings.time_limit_s,
+        mip_rel_gap=settings.mip_rel_gap,
+        threads=threads,
+    )
+
+
+class _Clock:
+    """Wall time per stage, reported to an optional progress callback."""
+
+    def __init__(self, progress: Progress | None) -> None:
+        self.timings = Timings()
+        self.progress = progress
+
+    @contextmanager
+    def stage(self, name: str, total: int = 1) -> Iterator[None]:
+        if self.progress:
+            self.progress(name, 0, total)
+        start = time.perf_counter()
+        yield
+        setattr(self.timings, name, round(time.perf_counter() - start, 4))
+
+
+def plan(
+    part: Part,
+    request: PlanRequest,
+    *,
+    limits: Limits = Limits(),
+    backend: RayBackend | None = None,
+    threads: int | None = None,
+    progress: Progress | None = None,
+    load_s: float = 0.0,
+) -> PlanDocument:
+    """Plan the fewest viewpoints covering `part` as `request` asks (the whole pipeline)."""
+    clock = _Clock(progress)
+    clock.timings.load = round(load_s, 4)
+    backend = backend or make_backend(part)
+    if isinstance(request.candidates, CandidateGenerator):
+        check_limits(request.candidates.count, request.sensor.n_pixels, limits)
+    with clock.stage("candidates"):
+        views, info = candidates_for(part, request, backend)
+    check_limits(len(views), request.sensor.n_pixels, limits)
+    with clock.stage("trace", len(views)):
+        done = _counter(progress, "trace", len(views))
+        trace = trace_counts(
+            part, request.sensor, views, backend=backend, threads=threads, progress=done
+        )
+        counts = trace.counts
+    with clock.stage("matrices"):
+        model = cover_model(
+            counts,
+            part.areas,
+            part.counted,
+            request.target.resolution_mm,
+            request.target.formulation,
+        )
+    with clock.stage("solve"):
+        result = solve(model, request.solver, threads)
+    with clock.stage("metrics"):
+        doc = document(
+            part, request, views, info, trace, model, result, clock.timings, backend.name
+        )
+    doc.timings_s.metrics = clock.timings.metrics
+    return doc
+
+
+def _counter(progress: Progress | None, stage: str, total: int) -> Callable[[int], None]:
+    """A per-viewpoint callback that forwards running totals to `progress`."""
+    state = [0]
+
+    def advance(n: int) -> None:
+        state[0] += n
+        if progress:
+            progress(stage, state[0], total)
+
+    return advance
+
+
+def document(
+    part: Part,
+    request: PlanRequest,
+    views: Viewpoints,
+    info: CandidateInfo,
+    trace: Trace,
+    model: CoverModel,
+    result: CoverResult,
+    timings: Timings,
+    backend_name: str,
+) -> PlanDocument:
+    """Assemble the plan document from the stages' results."""
+    order = visiting_order(views.positions[result.selected])
+    chosen = result.selected[order]
+    metrics = evaluate(trace.counts, part.areas, part.counted, chosen, request.target.resolution_mm)
+    return PlanDocument(
+        mesh=MeshInfo(
+            id=part.id,
+            faces=part.n_faces,
+            area_mm2=part.area_mm2,
+            counted_faces=int(part.counted.sum()),
+            warnings=list(part.warnings),
+        ),
+        sensor=request.sensor,
+        target=request.target,
+        candidates=_poses(views, np.arange(len(views)), CandidateOut),
+        candidate_info=info,
+        viewpoints=_poses(views, chosen, ViewpointOut),
+        tour_length_mm=path_length(views.positions, chosen),
+        solver=SolverOut(
+            name=result.solver,
+            status=result.status,
+            objective=result.objective,
+            bound=result.bound,
+            gap=result.gap,
+            time_s=result.time_s,
+            rows=result.rows,
+            cols=result.cols,
+        ),
+        metrics=metrics,
+        uncoverable=Uncoverable(
+            faces=len(model.uncoverable),
+            area_mm2=float(part.areas[model.uncoverable].sum()),
+            ids=model.uncoverable.tolist(),
+        ),
+        rays=RaysInfo(
+            backend=backend_name,
+            per_view=request.sensor.n_pixels,
+            pixels=trace.pixels,
+            cast=trace.rays_cast,
+            valid=int(trace.counts.sum()),
+            cast_per_s=trace.rays_cast / max(timings.trace, 1e-9),
+        ),
+        timings_s=timings,
+    )
+
+
+def _poses(views: Viewpoints, index: np.ndarray, cls: type) -> list:  # type: ignore[type-arg]
+    """Pose records for the views at `index` (ids are candidate indices)."""
+    c2w = views.camera_to_world()
+    out = []
+    for j in index:
+        rec = dict(
+            id=int(j),
+            position=views.positions[j].tolist(),
+            gaze=views.gazes[j].tolist(),
+            up=views.ups[j].tolist(),
+        )
+        if cls is ViewpointOut:
+            rec["camera_to_world"] = c2w[j].tolist()
+        out.append(cls(**rec))
+    return out

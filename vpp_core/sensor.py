@@ -1,0 +1,94 @@
+"""The pinhole camera (SPEC §2, §8): specification, intrinsics and per-pixel rays.
+
+Camera frame (OpenCV): x right (image columns grow), y down (rows grow), z forward
+along the gaze. Pixel (u, v) is seen along ((u+0.5-W/2)/fx, (v+0.5-H/2)/fy, 1); with
+z = 1 the ray parameter t of a hit *is* its depth along the optical axis.
+"""
+
+from __future__ import annotations
+
+import math
+from functools import cached_property
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from vpp_core.errors import SensorError
+
+
+class Sensor(BaseModel):
+    """A pinhole camera; lengths in mm, angles in degrees; defaults are the paper's camera."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    width_px: int = Field(1920, ge=1, le=20_000, description="image width in pixels")
+    height_px: int = Field(1200, ge=1, le=20_000, description="image height in pixels")
+    fov_x_deg: float = Field(38.7, gt=0, lt=180, description="horizontal field of view")
+    fov_y_deg: float = Field(24.75, gt=0, lt=180, description="vertical field of view")
+    near_mm: float = Field(300.0, gt=0, description="depth of field, near limit (depth on z)")
+    far_mm: float = Field(700.0, gt=0, description="depth of field, far limit (depth on z)")
+    max_incidence_deg: float = Field(75.0, gt=0, le=90, description="largest angle ray/normal")
+    working_distance_mm: float | None = Field(
+        None, gt=0, description="camera-to-target distance of generated candidates; default mid DOF"
+    )
+
+    @model_validator(mode="after")
+    def _check(self) -> Sensor:
+        if self.near_mm >= self.far_mm:
+            raise ValueError(f"near_mm ({self.near_mm}) must be less than far_mm ({self.far_mm})")
+        wd = self.working_distance_mm
+        if wd is not None and not self.near_mm <= wd <= self.far_mm:
+            raise ValueError(f"working_distance_mm ({wd}) must lie in [near_mm, far_mm]")
+        if wd is None:
+            object.__setattr__(self, "working_distance_mm", (self.near_mm + self.far_mm) / 2)
+        return self
+
+    @property
+    def working_distance(self) -> float:
+        """Working distance in mm (filled in by validation)."""
+        return float(self.working_distance_mm or (self.near_mm + self.far_mm) / 2)
+
+    @property
+    def fx(self) -> float:
+        """Focal length in pixels along x."""
+        return (self.width_px / 2) / math.tan(math.radians(self.fov_x_deg) / 2)
+
+    @property
+    def fy(self) -> float:
+        """Focal length in pixels along y."""
+        return (self.height_px / 2) / math.tan(math.radians(self.fov_y_deg) / 2)
+
+    @property
+    def n_pixels(self) -> int:
+        """Rays per view."""
+        return self.width_px * self.height_px
+
+    def pixel_pitch_mm(self, depth_mm: float) -> float:
+        """Footprint of one pixel along x at a given depth (mm), SPEC §7."""
+        return 2 * depth_mm * math.tan(math.radians(self.fov_x_deg) / 2) / self.width_px
+
+    @cached_property
+    def camera_rays(self) -> np.ndarray:
+        """(H*W, 3) float32 ray directions in the camera frame, z = 1, row-major over (v, u)."""
+        u = (np.arange(self.width_px) + 0.5 - self.width_px / 2) / self.fx
+        v = (np.arange(self.height_px) + 0.5 - self.height_px / 2) / self.fy
+        rays = np.empty((self.height_px, self.width_px, 3), dtype=np.float32)
+        rays[..., 0] = u[None, :]
+        rays[..., 1] = v[:, None]
+        rays[..., 2] = 1.0
+        return rays.reshape(-1, 3)
+
+    @cached_property
+    def camera_ray_norms(self) -> np.ndarray:
+        """(H*W,) float32 lengths of `camera_rays`."""
+        return np.asarray(np.linalg.norm(self.camera_rays, axis=1), dtype=np.float32)
+
+
+def make_sensor(spec: dict[str, object] | None = None) -> Sensor:
+    """Validate a sensor specification (a JSON object) into a Sensor, or raise SensorError."""
+    try:
+        return Sensor.model_validate(spec or {})
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        where = ".".join(str(p) for p in first["loc"]) or "sensor"
+        raise SensorError(f"{where}: {first['msg']}") from None

@@ -1,0 +1,94 @@
+"""The default candidate generator (SPEC §2)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+from scipy.spatial import cKDTree
+
+from vpp_core.candidates import GeneratorSettings, generate, spaced_samples
+from vpp_core.mesh import load_mesh, part_from_arrays
+from vpp_core.sensor import Sensor
+
+SENSOR = Sensor()
+
+
+def box_part(extents=(80.0, 60.0, 40.0)):
+    m = trimesh.creation.box(extents)
+    return part_from_arrays(m.vertices, m.faces)
+
+
+def test_cameras_sit_at_working_distance_looking_back_at_the_surface():
+    part = box_part()
+    gen = generate(part, SENSOR, GeneratorSettings(count=60, seed=1))
+    v = gen.views
+    assert 50 <= len(v) <= 60
+    targets = v.positions + SENSOR.working_distance * v.gazes
+    # the target lies on the box surface: on one face plane, inside the others
+    half = np.array([40.0, 30.0, 20.0])
+    on_face = np.isclose(np.abs(targets), half, atol=1e-6).any(axis=1)
+    assert on_face.all() and (np.abs(targets) <= half + 1e-6).all()
+    # outward: the camera is outside the box, farther than the working distance minus the box
+    assert (np.abs(v.positions) > half).any(axis=1).all()
+    assert (np.linalg.norm(v.gazes, axis=1) == pytest.approx(1.0))
+
+
+def test_seeded_and_deterministic():
+    part = box_part()
+    a = generate(part, SENSOR, GeneratorSettings(count=40, seed=7)).views
+    b = generate(part, SENSOR, GeneratorSettings(count=40, seed=7)).views
+    c = generate(part, SENSOR, GeneratorSettings(count=40, seed=8)).views
+    assert np.array_equal(a.positions, b.positions) and np.array_equal(a.gazes, b.gazes)
+    assert not np.array_equal(a.positions, c.positions)
+
+
+def test_samples_are_spaced_and_area_weighted():
+    m = trimesh.creation.box((100.0, 100.0, 1.0))
+    points, faces, spacing = spaced_samples(m, 200, seed=0)
+    assert len(points) == 200
+    d, _ = cKDTree(points).query(points, k=2)
+    assert d[:, 1].min() >= spacing - 1e-9
+    # the two big faces hold ~all the area, hence ~all the samples
+    big = np.abs(m.face_normals[faces][:, 2]) > 0.9
+    assert big.mean() > 0.9
+
+
+def test_inverted_cube_still_gets_outside_cameras():
+    from tests.conftest import MESHES, shared_dir
+
+    data = (shared_dir(MESHES / "bad") / "cube_inverted_winding.stl").read_bytes()
+    part = load_mesh(data, "stl")
+    v = generate(part, SENSOR, GeneratorSettings(count=20, seed=0, clearance_mm=5)).views
+    centre = part.vertices.mean(axis=0)
+    assert len(v) >= 15
+    to_centre = centre - v.positions
+    assert (np.einsum("ij,ij->i", to_centre, v.gazes) > 0).all()
+    assert (np.linalg.norm(to_centre, axis=1) > 400).all()
+
+
+def test_candidates_that_cannot_see_their_target_or_are_too_close_are_dropped():
+    # a hollow box: 300 mm outside, a closed 200 mm cavity inside (walls 50 mm thick)
+    outer = trimesh.creation.box((300.0, 300.0, 300.0))
+    cavity = trimesh.creation.box((200.0, 200.0, 200.0))
+    cavity.invert()
+    mesh = trimesh.util.concatenate([outer, cavity])
+    part = part_from_arrays(mesh.vertices, mesh.faces)
+    gen = generate(part, SENSOR, GeneratorSettings(count=60, seed=0))
+    targets = gen.views.positions + SENSOR.working_distance * gen.views.gazes
+    # every kept camera looks at the outside; every cavity sample (~30 % of area) was dropped
+    assert np.allclose(np.abs(targets).max(axis=1), 150.0)
+    assert (np.abs(gen.views.positions).max(axis=1) > 150.0).all()
+    assert 0.15 * 60 <= gen.dropped <= 0.45 * 60
+    none = generate(part, SENSOR, GeneratorSettings(count=20, seed=0, clearance_mm=600.0))
+    assert len(none.views) == 0 and none.dropped == 20
+
+
+def test_decimated_planning_mesh():
+    m = trimesh.creation.icosphere(subdivisions=4, radius=50.0)
+    part = part_from_arrays(m.vertices, m.faces)
+    gen = generate(part, SENSOR, GeneratorSettings(count=30, seed=0, decimate=0.1))
+    assert gen.planning_faces == pytest.approx(0.1 * part.n_faces, rel=0.1)
+    assert len(gen.views) == 30
+    dist = np.linalg.norm(gen.views.positions, axis=1)
+    assert dist == pytest.approx(np.full(30, 550.0), rel=0.01)

@@ -1,0 +1,77 @@
+"""V, δ, S (SPEC §3) against the formulas written out densely, and the metrics' sums."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from vpp_core.density import cover_model, density_matrix
+from vpp_core.metrics import evaluate
+
+
+def random_counts(seed: int, m: int = 60, n: int = 8) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    r = rng.integers(0, 40, (m, n)) * (rng.random((m, n)) < 0.35)
+    areas = rng.uniform(0.5, 20.0, m)
+    areas[:3] = 0.0  # zero-area faces
+    r[3:6] = 0  # unseen faces
+    return r.astype(np.int32), areas
+
+
+@pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize("res", [0.15, 0.4, 1.0])
+def test_s_matches_the_spec_formula(seed, res):
+    r, areas = random_counts(seed)
+    counted = areas > 0
+    model = cover_model(sp.csc_array(r), areas, counted, res, "density")
+    with np.errstate(divide="ignore", invalid="ignore"):
+        delta = np.where(areas[:, None] > 0, np.sqrt(r / areas[:, None]), 0.0)
+    target = 1 / res
+    v = (r > 0).astype(float)
+    s = np.where((delta.sum(1) >= target)[:, None], np.minimum(1, delta / target), v)
+    seen = r.any(axis=1)
+    assert model.faces.tolist() == np.flatnonzero(seen).tolist()
+    assert np.allclose(model.matrix.toarray(), s[seen])
+    assert model.uncoverable.tolist() == np.flatnonzero(counted & ~seen).tolist()
+    assert model.matrix.max() <= 1.0 and model.matrix.min() >= 0.0
+
+
+def test_visibility_rows_are_zero_one():
+    r, areas = random_counts(1)
+    model = cover_model(sp.csc_array(r), areas, areas > 0, 0.2, "visibility")
+    seen = r.any(axis=1)
+    assert np.array_equal(model.matrix.toarray(), (r[seen] > 0).astype(float))
+    assert not model.density_rows.any()
+
+
+def test_zero_area_faces_get_a_visibility_row_only():
+    r = np.array([[5, 0], [0, 9]], dtype=np.int32)
+    areas = np.array([0.0, 1.0])
+    model = cover_model(sp.csc_array(r), areas, areas > 0, 0.5, "density")
+    assert model.matrix.toarray().tolist() == [[1.0, 0.0], [0.0, 1.0]]
+    assert model.density_rows.tolist() == [False, True]
+
+
+def test_density_is_sqrt_counts_over_area():
+    r = np.array([[4, 0], [0, 9]], dtype=np.int32)
+    d = density_matrix(sp.csc_array(r), np.array([1.0, 4.0])).toarray()
+    assert d.tolist() == [[2.0, 0.0], [0.0, 1.5]]
+
+
+def test_metrics_on_a_hand_example():
+    # faces: 0 seen by view 0 (δ=2), 1 by views 0+1 (δ=1+1), 2 by view 1 (δ=0.5), 3 unseen
+    r = np.array([[4, 0], [1, 1], [0, 1], [0, 0]], dtype=np.int32)
+    areas = np.array([1.0, 1.0, 4.0, 2.0])
+    counted = np.ones(4, bool)
+    m = evaluate(sp.csc_array(r), areas, counted, np.array([0]), resolution_mm=0.5)
+    assert m.coverage.faces == pytest.approx(2 / 4) and m.coverage.area == pytest.approx(2 / 8)
+    assert m.coverage.max_faces == pytest.approx(3 / 4) and m.coverage.max_area == pytest.approx(6 / 8)
+    # target δ̄ = 2: view 0 alone gives face 0 δ 2 (met) and face 1 δ 1 (not met)
+    assert m.resolution.met_faces == pytest.approx(1 / 4)
+    assert m.resolution.max_met_faces == pytest.approx(2 / 4)  # faces 0 and 1 with both views
+    assert m.paper.C_per_viewpoint == [pytest.approx(2 / 4)]
+    h = m.resolution.histogram
+    assert sum(h.faces) + h.overflow_faces + h.unseen_faces == 4
+    assert sum(h.area_mm2) + h.overflow_area_mm2 + h.unseen_area_mm2 == pytest.approx(8.0)
+    assert m.resolution.median_mm == pytest.approx(0.75)  # r* = 0.5 and 1.0

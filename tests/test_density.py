@@ -66,7 +66,8 @@ def test_metrics_on_a_hand_example():
     counted = np.ones(4, bool)
     m = evaluate(sp.csc_array(r), areas, counted, np.array([0]), resolution_mm=0.5)
     assert m.coverage.faces == pytest.approx(2 / 4) and m.coverage.area == pytest.approx(2 / 8)
-    assert m.coverage.max_faces == pytest.approx(3 / 4) and m.coverage.max_area == pytest.approx(6 / 8)
+    assert m.coverage.max_faces == pytest.approx(3 / 4)
+    assert m.coverage.max_area == pytest.approx(6 / 8)
     # target δ̄ = 2: view 0 alone gives face 0 δ 2 (met) and face 1 δ 1 (not met)
     assert m.resolution.met_faces == pytest.approx(1 / 4)
     assert m.resolution.max_met_faces == pytest.approx(2 / 4)  # faces 0 and 1 with both views

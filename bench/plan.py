@@ -186,7 +186,7 @@ def table(lines: list[dict[str, Any]]) -> str:
         "res%", "maxres%", "uncov", "Mray/s", "load", "cands", "trace", "matr", "solve",
         "metr", "wall", "MiB",
     )  # fmt: skip
-    rows = [head]
+    rows: list[tuple[str, ...]] = [head]
     for r in lines:
         if "error" in r:
             rows.append((r["mesh"][:28], "-", r["units"], "FAILED: " + r["error"][:150]))
@@ -220,7 +220,8 @@ def table(lines: list[dict[str, Any]]) -> str:
         if len(row) != len(head):  # failure: mesh, faces, units, then the message
             out.append("  ".join([row[0].ljust(width[0]), row[1].rjust(width[1]), *row[2:]]))
         else:
-            cells = [row[0].ljust(width[0])] + [c.rjust(w) for c, w in zip(row[1:], width[1:])]
+            rest = (c.rjust(w) for c, w in zip(row[1:], width[1:], strict=True))
+            cells = [row[0].ljust(width[0]), *rest]
             out.append("  ".join(cells))
     return "\n".join(out)
 

@@ -35,6 +35,14 @@ class _Parser(argparse.ArgumentParser):
         self.exit(EXIT_INPUT, f"{self.prog}: error: {message}\n")
 
 
+def _positive_int(text: str) -> int:
+    """argparse type: an integer ≥ 1."""
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
+    return value
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of `vpp`."""
     parser = _Parser(prog="vpp", description="Inspection viewpoint planning (SPEC v1).")
@@ -55,7 +63,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--time-limit", type=float, default=60.0, help="solver time limit, s")
     p.add_argument("--gap", type=float, default=0.0, help="relative MIP gap accepted")
     p.add_argument("--seed", type=int, default=0, help="candidate generator seed")
-    p.add_argument("--threads", type=int, help="threads (default: all cores)")
+    p.add_argument("--threads", type=_positive_int, help="threads (default: all cores)")
     p.add_argument("-o", "--output", type=Path, help="write the plan document (JSON) here")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
     return parser

@@ -31,7 +31,7 @@ def test_cameras_sit_at_working_distance_looking_back_at_the_surface():
     assert on_face.all() and (np.abs(targets) <= half + 1e-6).all()
     # outward: the camera is outside the box, farther than the working distance minus the box
     assert (np.abs(v.positions) > half).any(axis=1).all()
-    assert (np.linalg.norm(v.gazes, axis=1) == pytest.approx(1.0))
+    assert np.linalg.norm(v.gazes, axis=1) == pytest.approx(1.0)
 
 
 def test_seeded_and_deterministic():

@@ -152,6 +152,18 @@ def test_bad_meshes_fail_with_one_line_and_exit_2(name):
     assert "Traceback" not in run.stderr
 
 
+@pytest.mark.parametrize("name", sorted(ACCEPTED))
+def test_accepted_bad_meshes_plan_and_report_the_problem(name, tmp_path):
+    bad = shared_dir(MESHES / "bad") / name
+    out = tmp_path / "plan.json"
+    run = vpp("plan", bad, "-q", "--candidates", "20", "-o", out)
+    assert run.returncode == 0, run.stderr
+    doc = json.loads(out.read_text())
+    assert doc["viewpoints"] and doc["metrics"]["coverage"]["area"] > 0.5
+    if name != "single_triangle.stl":
+        assert doc["mesh"]["warnings"], "the repaired or excluded problem must be reported"
+
+
 @pytest.mark.parametrize(
     "args, match",
     [
@@ -161,6 +173,7 @@ def test_bad_meshes_fail_with_one_line_and_exit_2(name):
         (["--units", "furlong"], "invalid choice"),
         (["--time-limit", "0"], "time_limit"),
         (["--decimate", "1.5"], "decimate"),
+        (["--threads", "0"], "at least 1"),
     ],
 )
 def test_bad_options_fail_with_one_line_and_exit_2(plate_files, args, match):
@@ -186,3 +199,17 @@ def test_bad_files_fail_with_one_line_and_exit_2(plate_files, tmp_path):
         assert len(run.stderr.strip().splitlines()) == 1 and "Traceback" not in run.stderr
     run = vpp("plan", tmp_path / "nothing.stl", "-q")
     assert run.returncode == 2 and "No such file" in run.stderr
+
+
+def test_limits_are_settings(plate_files, monkeypatch):
+    mesh, views = plate_files
+    monkeypatch.setenv("VPP_MAX_CANDIDATES", "1")
+    run = vpp("plan", mesh, "-q", "--candidates-file", views)
+    assert run.returncode == 2 and "2 candidates exceed the limit of 1" in run.stderr
+    monkeypatch.setenv("VPP_MAX_CANDIDATES", "10")
+    monkeypatch.setenv("VPP_MAX_RAYS", "1000000")
+    run = vpp("plan", mesh, "-q", "--candidates-file", views)
+    assert run.returncode == 2 and "rays exceed the limit" in run.stderr
+    monkeypatch.setenv("VPP_MAX_FACES", "1")
+    run = vpp("plan", mesh, "-q")
+    assert run.returncode == 2 and "limit is 1" in run.stderr

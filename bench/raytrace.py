@@ -1,0 +1,341 @@
+"""Benchmark the ray tracer against bare Embree on the same rays; one JSON line per measurement.
+
+    python bench/raytrace.py [--meshes MESH...] [--views 8] [--threads 1,2]
+                             [--synthetic-faces 1000000] [--distance 500] [--repeat 1]
+
+Every mesh is seen by `--views` cameras of the paper's sensor (1920 x 1200 px) placed
+`--distance` mm from the centre of its bounding box, along directions spread evenly on a
+sphere (Fibonacci lattice), looking at the centre. For each mesh and thread count T:
+
+- `bare`: `EmbreeScene.run(origins, directions, dists=far, output=1)` on each view's
+  world-space float32 ray directions (exactly those `trace_counts` builds), in chunks of
+  whole image rows (~`CHUNK_RAYS` rays, as `trace_counts` splits them) over a T-thread pool,
+  no post-processing: the reference rate. The scene is built as `EmbreeBackend` builds it
+  (robust); the directions and origins are made before the clock starts.
+- `bare_primid`: the same with plain `run(origins, directions)` (primID only, no far limit),
+  for information.
+- `full`: `trace_counts(..., threads=T, cull=False)` (all pixels, post-processing and
+  sparse assembly included); rays/s = views x pixels / wall.
+- `cull`: `trace_counts(..., threads=T, cull=True)` (pixels inside the projected hull only);
+  pixel rays/s = views x pixels / wall, cast rays/s = rays_cast / wall.
+
+The scene is built once per mesh (its build time is reported on the `mesh` line, not in any
+rate) and shared by all measurements; each measurement is warmed up once on one view, then
+timed `--repeat` times (the fastest run is reported). The `mesh` line also gives the hit
+fraction and the depth range of first hits over all views (from an untimed pass), which
+shows whether the part lies in the depth of field. `--synthetic-faces N` adds an icosphere
+of radius 150 mm (subdivision level chosen so its face count is nearest N on a log scale;
+0 = none); seen from 500 mm its visible surface lies at depths 350-455 mm, inside the
+300-700 mm depth of field. A summary table goes to stderr at the end.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+import time
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from vpp_core.mesh import Part, load_mesh, part_from_arrays  # noqa: E402
+from vpp_core.pose import Viewpoints, make_viewpoints  # noqa: E402
+from vpp_core.raytrace import CHUNK_RAYS, EmbreeBackend, _hull_points, trace_counts  # noqa: E402
+from vpp_core.sensor import Sensor  # noqa: E402
+
+MESH_DIR = ROOT.parent / "shared" / "meshes"
+DEFAULT_MESHES = ["1002_tray_bottom.STL", "counter.unitsmm.STL", "turbineblade.ply"]
+UNITS = {  # shared meshes not in mm (see ../shared/meshes/README.md)
+    "ADIS16480.STL": "m",
+    "abc_00000006_pipe_fitting.stl": "m",
+    "featuretype.STL": "in",
+    "42400-IDGH_exhaust_manifold.stl": "in",
+}
+SPHERE_RADIUS_MM = 150.0
+
+
+@dataclass
+class Row:
+    """One (mesh, threads) line of the summary table."""
+
+    mesh: str
+    faces: int
+    threads: int
+    build_s: float
+    hit_fraction: float
+    rates: dict[str, float] = field(default_factory=dict)  # Mrays/s by measurement
+    walls: dict[str, float] = field(default_factory=dict)  # seconds by measurement
+    cast_fraction: float = math.nan
+
+
+def emit(record: dict[str, Any]) -> None:
+    """Print one JSON line."""
+    print(json.dumps(record), flush=True)
+
+
+def fibonacci_directions(n: int) -> np.ndarray:
+    """(n, 3) unit vectors spread evenly on the sphere."""
+    i = np.arange(n) + 0.5
+    z = 1 - 2 * i / n
+    phi = i * math.pi * (3 - math.sqrt(5))
+    r = np.sqrt(1 - z * z)
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+
+
+def ring_views(part: Part, n: int, distance: float) -> Viewpoints:
+    """n cameras at `distance` mm from the part's bounding-box centre, looking at it."""
+    centre = part.bounds.mean(axis=0)
+    dirs = fibonacci_directions(n)
+    return make_viewpoints(centre + distance * dirs, -dirs)
+
+
+def synthetic_part(target_faces: int) -> tuple[str, Part]:
+    """An icosphere of radius SPHERE_RADIUS_MM with about target_faces faces (20 * 4**s)."""
+    import trimesh
+
+    level = max(0, round(math.log(max(target_faces, 20) / 20, 4)))
+    sphere = trimesh.creation.icosphere(subdivisions=level, radius=SPHERE_RADIUS_MM)
+    name = f"icosphere(s={level}, r={SPHERE_RADIUS_MM:g}mm)"
+    return name, part_from_arrays(np.asarray(sphere.vertices), np.asarray(sphere.faces))
+
+
+def load_part(path: Path, units: str | None) -> Part:
+    """Load a mesh file into a Part (units from the table of shared meshes unless given)."""
+    return load_mesh(path.read_bytes(), path.suffix, units or UNITS.get(path.name, "mm"))
+
+
+@dataclass
+class Rays:
+    """Every view's world-space ray directions and origins, as trace_counts builds them."""
+
+    origins: list[np.ndarray]  # (P, 3) float32 contiguous, per view
+    directions: list[np.ndarray]  # (P, 3) float32, per view
+    chunks: list[tuple[int, int, int]]  # (view, first ray, end ray)
+
+    @classmethod
+    def build(cls, sensor: Sensor, views: Viewpoints) -> Rays:
+        rotations = views.rotations()
+        dirs = [sensor.camera_rays @ r.T.astype(np.float32) for r in rotations]
+        origins = [
+            np.ascontiguousarray(np.broadcast_to(p.astype(np.float32), d.shape))
+            for p, d in zip(views.positions, dirs, strict=True)
+        ]
+        step = max(1, CHUNK_RAYS // sensor.width_px) * sensor.width_px
+        chunks = [
+            (j, s, min(s + step, sensor.n_pixels))
+            for j in range(len(views))
+            for s in range(0, sensor.n_pixels, step)
+        ]
+        return cls(origins, dirs, chunks)
+
+    @property
+    def total(self) -> int:
+        return sum(len(d) for d in self.directions)
+
+
+def run_bare(
+    scene: Any, rays: Rays, far: float, threads: int, primid_only: bool, views: int | None = None
+) -> None:
+    """Trace the chunks (of the first `views` views) over a pool; results are dropped."""
+    chunks = [c for c in rays.chunks if views is None or c[0] < views]
+
+    def work(chunk: tuple[int, int, int]) -> None:
+        j, s, e = chunk
+        if primid_only:
+            scene.run(rays.origins[j][s:e], rays.directions[j][s:e])
+        else:
+            scene.run(rays.origins[j][s:e], rays.directions[j][s:e], dists=far, output=1)
+
+    with ThreadPoolExecutor(threads) as pool:
+        for _ in pool.map(work, chunks):
+            pass
+
+
+def hit_stats(scene: Any, rays: Rays, far: float, threads: int) -> tuple[float, list[float]]:
+    """Fraction of all rays that hit before far, and [min, max] depth of the hits (untimed)."""
+
+    def work(chunk: tuple[int, int, int]) -> tuple[int, float, float]:
+        j, s, e = chunk
+        out = scene.run(rays.origins[j][s:e], rays.directions[j][s:e], dists=far, output=1)
+        t = out["tfar"][out["primID"] >= 0]
+        return len(t), float(t.min(initial=np.inf)), float(t.max(initial=-np.inf))
+
+    with ThreadPoolExecutor(threads) as pool:
+        res = list(pool.map(work, rays.chunks))
+    hits = sum(r[0] for r in res)
+    lo, hi = min(r[1] for r in res), max(r[2] for r in res)
+    return hits / rays.total, [round(lo, 1), round(hi, 1)] if hits else []
+
+
+def timed(fn: Callable[[], Any], repeat: int) -> tuple[float, Any]:
+    """Fastest wall time of `repeat` calls of fn, and the last result."""
+    best, result = math.inf, None
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        result = fn()
+        best = min(best, time.perf_counter() - t0)
+    return best, result
+
+
+def bench_part(
+    name: str, part: Part, args: argparse.Namespace, sensor: Sensor, rows: list[Row]
+) -> None:
+    """All measurements on one part; JSON lines to stdout, table rows appended to rows."""
+    views = ring_views(part, args.views, args.distance)
+    n, far = len(views), sensor.far_mm
+    pixels = n * sensor.n_pixels
+    t0 = time.perf_counter()
+    backend = EmbreeBackend(part.vertices, part.faces)  # robust=True, as make_backend
+    scene = backend._scene
+    scene.run(np.zeros((1, 3), np.float32), np.ones((1, 3), np.float32))  # commit = BVH build
+    build_s = time.perf_counter() - t0
+    rays = Rays.build(sensor, views)
+    t0 = time.perf_counter()
+    hull = _hull_points(part.vertices)
+    hull_s = time.perf_counter() - t0
+    hit_fraction, depth = hit_stats(scene, rays, far, max(args.threads))
+    emit(
+        {
+            "kind": "mesh",
+            "mesh": name,
+            "faces": part.n_faces,
+            "vertices": len(part.vertices),
+            "bbox_mm": [round(float(x), 2) for x in np.ptp(part.bounds, axis=0)],
+            "distance_mm": args.distance,
+            "views": n,
+            "pixels": pixels,
+            "build_s": round(build_s, 4),
+            "hull_points": len(hull),
+            "hull_s": round(hull_s, 4),
+            "hit_fraction": round(hit_fraction, 4),
+            "hit_depth_mm": depth,
+            "dof_mm": [sensor.near_mm, far],
+        }
+    )
+    first = views.take(np.array([0]))
+    for threads in args.threads:
+        row = Row(name, part.n_faces, threads, build_s, hit_fraction)
+        rows.append(row)
+        base = {"kind": "measure", "mesh": name, "faces": part.n_faces, "threads": threads}
+        base |= {"views": n, "pixels": pixels}
+
+        for mode, primid in (("bare", False), ("bare_primid", True)):
+            run_bare(scene, rays, far, threads, primid, views=1)  # warm-up
+            wall, _ = timed(
+                lambda p=primid, t=threads: run_bare(scene, rays, far, t, p), args.repeat
+            )
+            row.rates[mode], row.walls[mode] = pixels / wall / 1e6, wall
+            emit(base | {"mode": mode, "rays": pixels, "wall_s": round(wall, 4),
+                         "mrays_s": round(pixels / wall / 1e6, 3)})  # fmt: skip
+
+        for mode, cull in (("full", False), ("cull", True)):
+            trace_counts(part, sensor, first, backend=backend, threads=threads, cull=cull)
+            wall, tr = timed(
+                lambda c=cull, t=threads: trace_counts(
+                    part, sensor, views, backend=backend, threads=t, cull=c
+                ),
+                args.repeat,
+            )
+            assert tr.pixels == pixels
+            rate = pixels / wall / 1e6
+            row.rates[mode], row.walls[mode] = rate, wall
+            record = base | {"mode": mode, "rays": tr.rays_cast, "wall_s": round(wall, 4)}
+            record |= {"mrays_s": round(rate, 3)}
+            record |= {"cast_mrays_s": round(tr.rays_cast / wall / 1e6, 3)}
+            record |= {
+                "ratio_to_bare": round(rate / row.rates["bare"], 3),
+                "cast_fraction": round(tr.rays_cast / pixels, 4),
+                "valid_rays": int(tr.counts.sum()),
+                "valid_fraction": round(int(tr.counts.sum()) / pixels, 4),
+            }
+            if cull:
+                row.cast_fraction = tr.rays_cast / pixels
+                row.rates["cull_cast"] = tr.rays_cast / wall / 1e6
+            emit(record)
+
+
+def print_table(rows: list[Row], target: float) -> None:
+    """Human-readable summary on stderr."""
+    head = (
+        f"{'mesh':<36} {'faces':>8} {'T':>2} {'build s':>7} {'hit%':>6} {'bare':>6} "
+        f"{'primID':>6} {'full':>6} {'b/a':>5} {'cull px':>7} {'cull cast':>9} {'cast%':>6}  "
+        f"{'wall s bare/full/cull':>21}"
+    )
+    out = ["", "Mrays/s (bare = Embree run(output=1) reference; full = trace_counts cull=False; "
+           "cull = cull=True, per pixel and per cast ray)", head, "-" * len(head)]  # fmt: skip
+    for r in rows:
+        ratio = r.rates["full"] / r.rates["bare"]
+        flag = "" if ratio >= target else " <"
+        walls = "/".join(f"{r.walls[k]:.2f}" for k in ("bare", "full", "cull"))
+        out.append(
+            f"{r.mesh[:36]:<36} {r.faces:>8} {r.threads:>2} {r.build_s:>7.3f} "
+            f"{100 * r.hit_fraction:>5.1f}% {r.rates['bare']:>6.2f} {r.rates['bare_primid']:>6.2f} "
+            f"{r.rates['full']:>6.2f} {ratio:>5.2f} {r.rates['cull']:>7.2f} "
+            f"{r.rates['cull_cast']:>9.2f} {100 * r.cast_fraction:>5.1f}%  {walls:>21}{flag}"
+        )
+    out.append(f"(b/a target >= {target}; '<' marks a miss)")
+    print("\n".join(out), file=sys.stderr, flush=True)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Command-line entry point."""
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
+    ap.add_argument(
+        "--meshes",
+        nargs="*",
+        type=Path,
+        default=[MESH_DIR / m for m in DEFAULT_MESHES],
+        help="mesh files (default: a few of ../shared/meshes)",
+    )
+    ap.add_argument("--units", default=None, help="units of all meshes (default: per file, mm)")
+    ap.add_argument("--views", type=int, default=8, help="cameras per mesh")
+    ap.add_argument("--threads", default="1,2", help="comma-separated thread counts")
+    ap.add_argument(
+        "--synthetic-faces", type=int, default=1_000_000, help="icosphere faces (~), 0 = none"
+    )
+    ap.add_argument("--distance", type=float, default=None, help="camera distance, mm (def. WD)")
+    ap.add_argument("--repeat", type=int, default=1, help="timed runs per measurement (fastest)")
+    ap.add_argument("--target", type=float, default=0.80, help="target full/bare ratio")
+    args = ap.parse_args(argv)
+    args.threads = [int(t) for t in args.threads.split(",") if t.strip()]
+    sensor = Sensor()
+    args.distance = args.distance or sensor.working_distance
+    emit(
+        {
+            "kind": "setup",
+            "sensor": [sensor.width_px, sensor.height_px],
+            "threads": args.threads,
+            "cpus": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None,
+            "chunk_rays": CHUNK_RAYS,
+            "numpy": np.__version__,
+        }
+    )
+    rows: list[Row] = []
+    for path in args.meshes:
+        if not path.is_file():
+            print(f"skipping {path}: not found", file=sys.stderr)
+            continue
+        bench_part(path.name, load_part(path, args.units), args, sensor, rows)
+    if args.synthetic_faces > 0:
+        t0 = time.perf_counter()
+        name, part = synthetic_part(args.synthetic_faces)
+        print(f"built {name}: {part.n_faces} faces in {time.perf_counter() - t0:.1f} s",
+              file=sys.stderr)  # fmt: skip
+        bench_part(name, part, args, sensor, rows)
+    if rows:
+        print_table(rows, args.target)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

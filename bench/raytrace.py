@@ -76,6 +76,12 @@ class Row:
     rates: dict[str, float] = field(default_factory=dict)  # Mrays/s by measurement
     walls: dict[str, float] = field(default_factory=dict)  # seconds by measurement
     cast_fraction: float = math.nan
+    others: float = 0.0  # most cores other processes used during one of the row's timings
+
+
+def rnd(x: float | None, digits: int = 2) -> float | None:
+    """x rounded, None kept."""
+    return None if x is None else round(x, digits)
 
 
 def emit(record: dict[str, Any]) -> None:
@@ -177,14 +183,48 @@ def hit_stats(scene: Any, rays: Rays, far: float, threads: int) -> tuple[float, 
     return hits / rays.total, [round(lo, 1), round(hi, 1)] if hits else []
 
 
-def timed(fn: Callable[[], Any], repeat: int) -> tuple[float, Any]:
-    """Fastest wall time of `repeat` calls of fn, and the last result."""
-    best, result = math.inf, None
+def busy_seconds() -> tuple[float, float] | None:
+    """(CPU seconds used by the whole machine, by this process) so far; None off Linux."""
+    try:
+        with open("/proc/stat") as fh:
+            f = [int(x) for x in fh.readline().split()[1:9]]
+    except (OSError, ValueError):
+        return None
+    t = os.times()
+    return (sum(f) - f[3] - f[4]) / os.sysconf("SC_CLK_TCK"), t.user + t.system
+
+
+def others_cores(before: tuple[float, float] | None, wall: float) -> float | None:
+    """Cores used on average by other processes since `before` (wall seconds ago)."""
+    after = busy_seconds()
+    if before is None or after is None or wall <= 0:
+        return None
+    return max(0.0, ((after[0] - before[0]) - (after[1] - before[1])) / wall)
+
+
+def wait_idle(limit_s: float, max_cores: float = 0.25) -> None:
+    """Wait (at most limit_s) until other processes use under max_cores over a 1 s sample."""
+    end = time.monotonic() + limit_s
+    while time.monotonic() < end:
+        before = busy_seconds()
+        time.sleep(1.0)
+        used = others_cores(before, 1.0)
+        if used is None or used < max_cores:
+            return
+
+
+def timed(fn: Callable[[], Any], repeat: int) -> tuple[float, Any, float | None]:
+    """Fastest wall time of `repeat` calls of fn, the last result, and the other processes'
+    average core use during the fastest call (a noisy machine shows here)."""
+    best, result, others = math.inf, None, None
     for _ in range(repeat):
+        before = busy_seconds()
         t0 = time.perf_counter()
         result = fn()
-        best = min(best, time.perf_counter() - t0)
-    return best, result
+        wall = time.perf_counter() - t0
+        if wall < best:
+            best, others = wall, others_cores(before, wall)
+    return best, result, others
 
 
 def bench_part(
@@ -230,17 +270,20 @@ def bench_part(
         base |= {"views": n, "pixels": pixels}
 
         for mode, primid in (("bare", False), ("bare_primid", True)):
+            wait_idle(args.wait_idle)
             run_bare(scene, rays, far, threads, primid, views=1)  # warm-up
-            wall, _ = timed(
+            wall, _, others = timed(
                 lambda p=primid, t=threads: run_bare(scene, rays, far, t, p), args.repeat
             )
             row.rates[mode], row.walls[mode] = pixels / wall / 1e6, wall
-            emit(base | {"mode": mode, "rays": pixels, "wall_s": round(wall, 4),
-                         "mrays_s": round(pixels / wall / 1e6, 3)})  # fmt: skip
+            row.others = max(row.others, others or 0.0)
+            record = base | {"mode": mode, "rays": pixels, "wall_s": round(wall, 4)}
+            emit(record | {"mrays_s": round(pixels / wall / 1e6, 3), "others_cores": rnd(others)})
 
         for mode, cull in (("full", False), ("cull", True)):
+            wait_idle(args.wait_idle)
             trace_counts(part, sensor, first, backend=backend, threads=threads, cull=cull)
-            wall, tr = timed(
+            wall, tr, others = timed(
                 lambda c=cull, t=threads: trace_counts(
                     part, sensor, views, backend=backend, threads=t, cull=c
                 ),
@@ -249,6 +292,7 @@ def bench_part(
             assert tr.pixels == pixels
             rate = pixels / wall / 1e6
             row.rates[mode], row.walls[mode] = rate, wall
+            row.others = max(row.others, others or 0.0)
             record = base | {"mode": mode, "rays": tr.rays_cast, "wall_s": round(wall, 4)}
             record |= {"mrays_s": round(rate, 3)}
             record |= {"cast_mrays_s": round(tr.rays_cast / wall / 1e6, 3)}
@@ -257,6 +301,7 @@ def bench_part(
                 "cast_fraction": round(tr.rays_cast / pixels, 4),
                 "valid_rays": int(tr.counts.sum()),
                 "valid_fraction": round(int(tr.counts.sum()) / pixels, 4),
+                "others_cores": rnd(others),
             }
             if cull:
                 row.cast_fraction = tr.rays_cast / pixels
@@ -269,10 +314,13 @@ def print_table(rows: list[Row], target: float) -> None:
     head = (
         f"{'mesh':<36} {'faces':>8} {'T':>2} {'build s':>7} {'hit%':>6} {'bare':>6} "
         f"{'primID':>6} {'full':>6} {'b/a':>5} {'cull px':>7} {'cull cast':>9} {'cast%':>6}  "
-        f"{'wall s bare/full/cull':>21}"
+        f"{'wall s bare/full/cull':>21} {'other':>5}"
     )
-    out = ["", "Mrays/s (bare = Embree run(output=1) reference; full = trace_counts cull=False; "
-           "cull = cull=True, per pixel and per cast ray)", head, "-" * len(head)]  # fmt: skip
+    title = (
+        "Mrays/s (bare = Embree run(output=1) reference; primID = plain run(); "
+        "full = trace_counts cull=False; cull = cull=True, per pixel and per cast ray)"
+    )
+    out = ["", title, head, "-" * len(head)]
     for r in rows:
         ratio = r.rates["full"] / r.rates["bare"]
         flag = "" if ratio >= target else " <"
@@ -281,9 +329,13 @@ def print_table(rows: list[Row], target: float) -> None:
             f"{r.mesh[:36]:<36} {r.faces:>8} {r.threads:>2} {r.build_s:>7.3f} "
             f"{100 * r.hit_fraction:>5.1f}% {r.rates['bare']:>6.2f} {r.rates['bare_primid']:>6.2f} "
             f"{r.rates['full']:>6.2f} {ratio:>5.2f} {r.rates['cull']:>7.2f} "
-            f"{r.rates['cull_cast']:>9.2f} {100 * r.cast_fraction:>5.1f}%  {walls:>21}{flag}"
+            f"{r.rates['cull_cast']:>9.2f} {100 * r.cast_fraction:>5.1f}%  {walls:>21} "
+            f"{r.others:>5.2f}{flag}"
         )
-    out.append(f"(b/a target >= {target}; '<' marks a miss)")
+    out.append(
+        f"(b/a target >= {target}; '<' marks a miss; other = most cores other processes used "
+        "during the row's timings: above ~0.2 the rates are disturbed)"
+    )
     print("\n".join(out), file=sys.stderr, flush=True)
 
 
@@ -306,6 +358,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--distance", type=float, default=None, help="camera distance, mm (def. WD)")
     ap.add_argument("--repeat", type=int, default=1, help="timed runs per measurement (fastest)")
     ap.add_argument("--target", type=float, default=0.80, help="target full/bare ratio")
+    ap.add_argument(
+        "--wait-idle",
+        type=float,
+        default=0.0,
+        metavar="S",
+        help="before each measurement wait up to S s for other processes to go idle",
+    )
     args = ap.parse_args(argv)
     args.threads = [int(t) for t in args.threads.split(",") if t.strip()]
     sensor = Sensor()
@@ -329,8 +388,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.synthetic_faces > 0:
         t0 = time.perf_counter()
         name, part = synthetic_part(args.synthetic_faces)
-        print(f"built {name}: {part.n_faces} faces in {time.perf_counter() - t0:.1f} s",
-              file=sys.stderr)  # fmt: skip
+        took = time.perf_counter() - t0
+        print(f"built {name}: {part.n_faces} faces in {took:.1f} s", file=sys.stderr)
         bench_part(name, part, args, sensor, rows)
     if rows:
         print_table(rows, args.target)

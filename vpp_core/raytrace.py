@@ -110,7 +110,9 @@ def trace_counts(
     hull = _hull_points(part.vertices) if cull else None
     windows = [_window(sensor, views.positions[j], rotations[j], hull) for j in range(len(views))]
     tasks = [c for j, w in enumerate(windows) for c in _chunks(j, *w)]
-    columns: list[list[np.ndarray]] = [[] for _ in views.positions]
+    empty = (np.empty(0, np.int32), np.empty(0, np.int32))
+    columns: list[tuple[np.ndarray, np.ndarray]] = [empty] * len(views)
+    pending: dict[int, list[np.ndarray]] = {}
     left = np.bincount([c.view for c in tasks], minlength=len(views))
     if progress and (done := int((left == 0).sum())):
         progress(done)
@@ -122,13 +124,13 @@ def trace_counts(
     workers = threads or _cpu_count()
     with ThreadPoolExecutor(workers) as pool:
         for chunk, hits in zip(tasks, _bounded_map(pool, work, tasks, 2 * workers), strict=True):
-            columns[chunk.view].append(hits)
+            pending.setdefault(chunk.view, []).append(hits)
             left[chunk.view] -= 1
-            if progress and left[chunk.view] == 0:
-                progress(1)
-    counts = _assemble(
-        [np.concatenate(c) if c else np.empty(0, np.int32) for c in columns], part.n_faces
-    )
+            if left[chunk.view] == 0:  # reduce at once: memory grows with nnz(R), not rays
+                columns[chunk.view] = _column(np.concatenate(pending.pop(chunk.view)), part.n_faces)
+                if progress:
+                    progress(1)
+    counts = _assemble(columns, part.n_faces)
     return Trace(counts, sum(c.size for c in tasks), len(views) * sensor.n_pixels)
 
 
@@ -182,20 +184,20 @@ def _valid_faces(
     return np.asarray(part.representative[prim[ok]], dtype=np.int32)
 
 
-def _assemble(columns: list[np.ndarray], n_faces: int) -> sp.csc_array:
-    """(M, N) int32 csc count matrix from each view's list of valid face ids."""
+def _column(faces: np.ndarray, n_faces: int) -> tuple[np.ndarray, np.ndarray]:
+    """One view's (faces hit, valid-ray counts), both (k,) int32, from its valid face ids."""
+    counts = np.bincount(faces, minlength=n_faces)
+    nz = np.flatnonzero(counts)
+    return nz.astype(np.int32), counts[nz].astype(np.int32)
+
+
+def _assemble(columns: list[tuple[np.ndarray, np.ndarray]], n_faces: int) -> sp.csc_array:
+    """(M, N) int32 csc count matrix from each view's (faces, counts)."""
     indptr = np.zeros(len(columns) + 1, dtype=np.int64)
-    indices: list[np.ndarray] = [np.empty(0, np.int32)]
-    data: list[np.ndarray] = [np.empty(0, np.int32)]
-    for j, faces in enumerate(columns):
-        counts = np.bincount(faces, minlength=n_faces)
-        nz = np.flatnonzero(counts)
-        indices.append(nz.astype(np.int32))
-        data.append(counts[nz].astype(np.int32))
-        indptr[j + 1] = indptr[j] + len(nz)
-    return sp.csc_array(
-        (np.concatenate(data), np.concatenate(indices), indptr), shape=(n_faces, len(columns))
-    )
+    indptr[1:] = np.cumsum([len(f) for f, _ in columns])
+    indices = np.concatenate([f for f, _ in columns] or [np.empty(0, np.int32)])
+    data = np.concatenate([c for _, c in columns] or [np.empty(0, np.int32)])
+    return sp.csc_array((data, indices, indptr), shape=(n_faces, len(columns)))
 
 
 def _chunks(view: int, v0: int, v1: int, u0: int, u1: int) -> Iterator[_Chunk]:

@@ -2,6 +2,7 @@
 
     python bench/raytrace.py [--meshes MESH...] [--views 8] [--threads 1,2]
                              [--synthetic-faces 1000000] [--distance 500] [--repeat 1]
+                             [--malloc fixed|default] [--wait-idle S]
 
 Every mesh is seen by `--views` cameras of the paper's sensor (1920 x 1200 px) placed
 `--distance` mm from the centre of its bounding box, along directions spread evenly on a
@@ -26,7 +27,14 @@ fraction and the depth range of first hits over all views (from an untimed pass)
 shows whether the part lies in the depth of field. `--synthetic-faces N` adds an icosphere
 of radius 150 mm (subdivision level chosen so its face count is nearest N on a log scale;
 0 = none); seen from 500 mm its visible surface lies at depths 350-455 mm, inside the
-300-700 mm depth of field. A summary table goes to stderr at the end.
+300-700 mm depth of field.
+
+Each `measure` line also has `own_cores` (this process's CPU seconds / wall: a 1-thread
+run above 1 means helper threads, e.g. OpenBLAS's, are spinning), `others_cores` (other
+processes' use of the machine meanwhile: above ~0.2 the numbers are disturbed; `--wait-idle S`
+waits up to S s for quiet before each measurement) and `page_faults`. By default glibc's
+malloc thresholds are pinned first (`--malloc fixed`, see `fix_malloc`), which makes the
+rates repeatable. A summary table goes to stderr at the end (stdout stays JSON lines).
 """
 
 from __future__ import annotations
@@ -40,6 +48,7 @@ import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -84,6 +93,29 @@ def rnd(x: float | None, digits: int = 2) -> float | None:
     return None if x is None else round(x, digits)
 
 
+def fix_malloc() -> bool:
+    """Stop glibc from returning freed blocks of up to 32 MiB to the OS; True if done.
+
+    Embree's `run(output=1)` allocates ~32 bytes per ray of fresh result arrays per call.
+    With glibc's default, sliding mmap/trim thresholds, whether those come back as recycled
+    heap memory or as new pages (page faults, ~20 % of the trace time) depends on the
+    process's allocation history, so the same measurement runs at two speeds from one
+    process to the next. Fixed thresholds remove that lottery for every measurement alike.
+    """
+    import ctypes
+    import ctypes.util
+
+    name = ctypes.util.find_library("c")
+    if not name or not sys.platform.startswith("linux"):
+        return False
+    try:
+        mallopt = ctypes.CDLL(name).mallopt
+    except (OSError, AttributeError):
+        return False
+    m_trim_threshold, m_mmap_threshold = -1, -3
+    return bool(mallopt(m_mmap_threshold, 32 << 20)) and bool(mallopt(m_trim_threshold, 1 << 30))
+
+
 def emit(record: dict[str, Any]) -> None:
     """Print one JSON line."""
     print(json.dumps(record), flush=True)
@@ -124,7 +156,7 @@ def load_part(path: Path, units: str | None) -> Part:
 class Rays:
     """Every view's world-space ray directions and origins, as trace_counts builds them."""
 
-    origins: list[np.ndarray]  # (P, 3) float32 contiguous, per view
+    origins: list[np.ndarray]  # (P, 3) float32 per view (a broadcast row)
     directions: list[np.ndarray]  # (P, 3) float32, per view
     chunks: list[tuple[int, int, int]]  # (view, first ray, end ray)
 
@@ -132,8 +164,8 @@ class Rays:
     def build(cls, sensor: Sensor, views: Viewpoints) -> Rays:
         rotations = views.rotations()
         dirs = [sensor.camera_rays @ r.T.astype(np.float32) for r in rotations]
-        origins = [
-            np.ascontiguousarray(np.broadcast_to(p.astype(np.float32), d.shape))
+        origins = [  # one row seen n times, as EmbreeBackend.first_hits passes it
+            np.broadcast_to(p.astype(np.float32), d.shape)
             for p, d in zip(views.positions, dirs, strict=True)
         ]
         step = max(1, CHUNK_RAYS // sensor.width_px) * sensor.width_px
@@ -194,6 +226,15 @@ def busy_seconds() -> tuple[float, float] | None:
     return (sum(f) - f[3] - f[4]) / os.sysconf("SC_CLK_TCK"), t.user + t.system
 
 
+def minor_faults() -> int | None:
+    """Minor page faults of this process so far (None where unsupported)."""
+    try:
+        import resource
+    except ImportError:
+        return None
+    return int(resource.getrusage(resource.RUSAGE_SELF).ru_minflt)
+
+
 def others_cores(before: tuple[float, float] | None, wall: float) -> float | None:
     """Cores used on average by other processes since `before` (wall seconds ago)."""
     after = busy_seconds()
@@ -213,18 +254,33 @@ def wait_idle(limit_s: float, max_cores: float = 0.25) -> None:
             return
 
 
-def timed(fn: Callable[[], Any], repeat: int) -> tuple[float, Any, float | None]:
-    """Fastest wall time of `repeat` calls of fn, the last result, and the other processes'
-    average core use during the fastest call (a noisy machine shows here)."""
-    best, result, others = math.inf, None, None
+@dataclass
+class Timing:
+    """Fastest wall time of a measurement and the CPU use around it."""
+
+    wall: float = math.inf
+    own_cores: float | None = None  # this process's CPU seconds / wall (all its threads)
+    others_cores: float | None = None  # other processes' CPU seconds / wall
+    page_faults: int | None = None  # this process's minor page faults during it
+
+
+def timed(fn: Callable[[], Any], repeat: int) -> tuple[Timing, Any]:
+    """Fastest of `repeat` calls of fn, with this and other processes' average core use
+    during it (a noisy machine, or helper threads spinning, show here), and the last result."""
+    best, result = Timing(), None
     for _ in range(repeat):
-        before = busy_seconds()
+        before, faults = busy_seconds(), minor_faults()
         t0 = time.perf_counter()
         result = fn()
         wall = time.perf_counter() - t0
-        if wall < best:
-            best, others = wall, others_cores(before, wall)
-    return best, result, others
+        if wall < best.wall:
+            end = minor_faults()
+            faults = None if faults is None or end is None else end - faults
+            own = None
+            if before is not None and (after := busy_seconds()) is not None:
+                own = (after[1] - before[1]) / wall
+            best = Timing(wall, own, others_cores(before, wall), faults)
+    return best, result
 
 
 def bench_part(
@@ -272,27 +328,24 @@ def bench_part(
         for mode, primid in (("bare", False), ("bare_primid", True)):
             wait_idle(args.wait_idle)
             run_bare(scene, rays, far, threads, primid, views=1)  # warm-up
-            wall, _, others = timed(
-                lambda p=primid, t=threads: run_bare(scene, rays, far, t, p), args.repeat
-            )
+            tm, _ = timed(partial(run_bare, scene, rays, far, threads, primid), args.repeat)
+            wall = tm.wall
             row.rates[mode], row.walls[mode] = pixels / wall / 1e6, wall
-            row.others = max(row.others, others or 0.0)
+            row.others = max(row.others, tm.others_cores or 0.0)
             record = base | {"mode": mode, "rays": pixels, "wall_s": round(wall, 4)}
-            emit(record | {"mrays_s": round(pixels / wall / 1e6, 3), "others_cores": rnd(others)})
+            record |= {"mrays_s": round(pixels / wall / 1e6, 3), "own_cores": rnd(tm.own_cores)}
+            emit(record | {"others_cores": rnd(tm.others_cores), "page_faults": tm.page_faults})
 
         for mode, cull in (("full", False), ("cull", True)):
             wait_idle(args.wait_idle)
             trace_counts(part, sensor, first, backend=backend, threads=threads, cull=cull)
-            wall, tr, others = timed(
-                lambda c=cull, t=threads: trace_counts(
-                    part, sensor, views, backend=backend, threads=t, cull=c
-                ),
-                args.repeat,
-            )
+            trace = partial(trace_counts, part, sensor, views, backend=backend, threads=threads)
+            tm, tr = timed(partial(trace, cull=cull), args.repeat)
             assert tr.pixels == pixels
+            wall = tm.wall
             rate = pixels / wall / 1e6
             row.rates[mode], row.walls[mode] = rate, wall
-            row.others = max(row.others, others or 0.0)
+            row.others = max(row.others, tm.others_cores or 0.0)
             record = base | {"mode": mode, "rays": tr.rays_cast, "wall_s": round(wall, 4)}
             record |= {"mrays_s": round(rate, 3)}
             record |= {"cast_mrays_s": round(tr.rays_cast / wall / 1e6, 3)}
@@ -301,7 +354,9 @@ def bench_part(
                 "cast_fraction": round(tr.rays_cast / pixels, 4),
                 "valid_rays": int(tr.counts.sum()),
                 "valid_fraction": round(int(tr.counts.sum()) / pixels, 4),
-                "others_cores": rnd(others),
+                "own_cores": rnd(tm.own_cores),
+                "others_cores": rnd(tm.others_cores),
+                "page_faults": tm.page_faults,
             }
             if cull:
                 row.cast_fraction = tr.rays_cast / pixels
@@ -359,6 +414,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--repeat", type=int, default=1, help="timed runs per measurement (fastest)")
     ap.add_argument("--target", type=float, default=0.80, help="target full/bare ratio")
     ap.add_argument(
+        "--malloc",
+        choices=["fixed", "default"],
+        default="fixed",
+        help="fixed: glibc mmap/trim thresholds pinned (stable rates, see fix_malloc); "
+        "default: leave glibc's sliding thresholds",
+    )
+    ap.add_argument(
         "--wait-idle",
         type=float,
         default=0.0,
@@ -367,6 +429,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     args = ap.parse_args(argv)
     args.threads = [int(t) for t in args.threads.split(",") if t.strip()]
+    malloc_fixed = args.malloc == "fixed" and fix_malloc()
     sensor = Sensor()
     args.distance = args.distance or sensor.working_distance
     emit(
@@ -376,6 +439,8 @@ def main(argv: list[str] | None = None) -> int:
             "threads": args.threads,
             "cpus": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None,
             "chunk_rays": CHUNK_RAYS,
+            "malloc_fixed": malloc_fixed,
+            "openblas_num_threads": os.environ.get("OPENBLAS_NUM_THREADS"),
             "numpy": np.__version__,
         }
     )

@@ -139,3 +139,15 @@ def test_camera_inside_the_hull_traces_everything():
     part = part_from_arrays(np.vstack([v, v + [0, 0, 900]]), np.vstack([f, f + len(v)]))
     trace = trace_counts(part, PAPER, look_down((0, 0, 500)))
     assert trace.rays_cast == trace.pixels and trace.counts.sum() > 0
+
+
+def test_culling_hull_contains_the_part():
+    import trimesh
+    from scipy.spatial import Delaunay
+
+    from vpp_core.raytrace import _hull_points
+
+    mesh = trimesh.creation.torus(major_radius=60, minor_radius=15)
+    mesh.apply_translation([10, -300, 40])
+    hull = Delaunay(_hull_points(mesh.vertices))
+    assert (hull.find_simplex(mesh.vertices) >= 0).all()

@@ -103,7 +103,7 @@ def trace_counts(
     progress: Progress | None = None,
     cull: bool = True,
 ) -> Trace:
-    """R for every view; with `cull`, only pixels inside the part's projected bounding box."""
+    """R for every view; with `cull`, only pixels inside the image of the part's hull are traced."""
     backend = backend or make_backend(part)
     rotations = views.rotations()
     cos_min = math.cos(math.radians(sensor.max_incidence_deg))

@@ -20,6 +20,7 @@ from typing import Protocol
 import numpy as np
 import scipy.sparse as sp
 
+from vpp_core.errors import VppError
 from vpp_core.mesh import Part
 from vpp_core.pose import Viewpoints
 from vpp_core.sensor import Sensor
@@ -67,8 +68,6 @@ class EmbreeBackend:
 def make_backend(part: Part, name: str = "embree") -> RayBackend:
     """The ray backend called `name`, built over the part's mesh."""
     if name != "embree":
-        from vpp_core.errors import VppError
-
         raise VppError(f"unknown ray backend {name!r}; available: embree")
     return EmbreeBackend(part.vertices, part.faces)
 

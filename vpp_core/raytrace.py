@@ -205,8 +205,7 @@ def _valid_faces(
     wakes OpenBLAS's own thread pool, whose spinning threads fight the tracer for the cores.
     """
     (v0, v1), (u0, u1) = chunk.rows, chunk.cols
-    grid = sensor.camera_rays.reshape(sensor.height_px, sensor.width_px, 3)
-    xs, ys = grid[0, u0:u1, 0], grid[v0:v1, 0, 1]
+    xs, ys = sensor.pixel_x[u0:u1], sensor.pixel_y[v0:v1]
     # world direction of camera ray (x, y, 1): x*X + y*Y + Z, built plane by plane
     out = np.empty((v1 - v0, u1 - u0, 3), dtype=np.float32)
     for k in range(3):
@@ -216,7 +215,7 @@ def _valid_faces(
             out=out[..., k],
         )
     directions = out.reshape(-1, 3)
-    norms = sensor.camera_ray_norms.reshape(sensor.height_px, sensor.width_px)[v0:v1, u0:u1]
+    norms = sensor.camera_ray_norms[v0:v1, u0:u1]
     prim, depth = backend.first_hits(position, directions, sensor.far_mm)
     hit = np.flatnonzero(prim >= 0)
     prim, depth = prim[hit], depth[hit]

@@ -68,20 +68,31 @@ class Sensor(BaseModel):
         return 2 * depth_mm * math.tan(math.radians(self.fov_x_deg) / 2) / self.width_px
 
     @cached_property
+    def pixel_x(self) -> np.ndarray:
+        """(W,) float32 camera-frame x of each pixel column's ray at z = 1."""
+        u = (np.arange(self.width_px) + 0.5 - self.width_px / 2) / self.fx
+        return u.astype(np.float32)
+
+    @cached_property
+    def pixel_y(self) -> np.ndarray:
+        """(H,) float32 camera-frame y of each pixel row's ray at z = 1."""
+        v = (np.arange(self.height_px) + 0.5 - self.height_px / 2) / self.fy
+        return v.astype(np.float32)
+
+    @cached_property
     def camera_rays(self) -> np.ndarray:
         """(H*W, 3) float32 ray directions in the camera frame, z = 1, row-major over (v, u)."""
-        u = (np.arange(self.width_px) + 0.5 - self.width_px / 2) / self.fx
-        v = (np.arange(self.height_px) + 0.5 - self.height_px / 2) / self.fy
         rays = np.empty((self.height_px, self.width_px, 3), dtype=np.float32)
-        rays[..., 0] = u[None, :]
-        rays[..., 1] = v[:, None]
+        rays[..., 0] = self.pixel_x[None, :]
+        rays[..., 1] = self.pixel_y[:, None]
         rays[..., 2] = 1.0
         return rays.reshape(-1, 3)
 
     @cached_property
     def camera_ray_norms(self) -> np.ndarray:
-        """(H*W,) float32 lengths of `camera_rays`."""
-        return np.asarray(np.linalg.norm(self.camera_rays, axis=1), dtype=np.float32)
+        """(H, W) float32 lengths of `camera_rays`."""
+        norms = np.linalg.norm(self.camera_rays, axis=1).reshape(self.height_px, self.width_px)
+        return np.asarray(norms, dtype=np.float32)
 
 
 def make_sensor(spec: dict[str, object] | None = None) -> Sensor:

@@ -15,10 +15,12 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
+from cli import serve
 from vpp_core.document import CandidateGenerator, PlanDocument, PlanRequest, SolverSettings, Target
 from vpp_core.errors import VppError
 from vpp_core.mesh import UNITS_TO_MM, load_mesh
 from vpp_core.plan import plan
+from vpp_core.samples import sample_stl
 from vpp_core.sensor import make_sensor
 from worker.settings import get_settings
 
@@ -66,6 +68,24 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--threads", type=_positive_int, help="threads (default: all cores)")
     p.add_argument("-o", "--output", type=Path, help="write the plan document (JSON) here")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(run=run_plan)
+    e = sub.add_parser("sample", help="write the sample part (a flanged bushing, mm) as STL")
+    e.add_argument("output", type=Path, help="STL file to write")
+    e.set_defaults(run=run_sample)
+    s = sub.add_parser(
+        "serve", help="run the HTTP API (with an embedded Redis and workers if no VPP_REDIS_URL)"
+    )
+    s.add_argument("--host", default="127.0.0.1")
+    s.add_argument("--port", type=int, default=8000)
+    s.add_argument(
+        "--workers", type=_positive_int, help="local workers (embedded mode; default VPP_WORKERS)"
+    )
+    s.set_defaults(run=serve.run_serve)
+    w = sub.add_parser("worker", help="run workers on the queue at VPP_REDIS_URL")
+    w.add_argument("--url", help="Redis URL (default: VPP_REDIS_URL)")
+    w.add_argument("--workers", type=_positive_int, help="worker processes (default VPP_WORKERS)")
+    w.add_argument("--burst", action="store_true", help="exit when the queue is empty")
+    w.set_defaults(run=serve.run_workers)
     return parser
 
 
@@ -73,7 +93,7 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point of the `vpp` console script."""
     args = build_parser().parse_args(argv)
     try:
-        return run_plan(args)
+        return int(args.run(args))
     except (VppError, InputError) as exc:
         detail = exc.detail if isinstance(exc, VppError) else str(exc)
         print(f"vpp: error: {detail}", file=sys.stderr)
@@ -110,6 +130,13 @@ def run_plan(args: argparse.Namespace) -> int:
     if args.output:
         _write(args.output, doc.model_dump_json(indent=1))
         print(f"plan written to {args.output}")
+    return 0
+
+
+def run_sample(args: argparse.Namespace) -> int:
+    """Write the sample part."""
+    _write_bytes(args.output, sample_stl())
+    print(f"sample part written to {args.output} (flanged bushing, mm)")
     return 0
 
 
@@ -164,8 +191,13 @@ def _read_json(path: Path) -> Any:
 
 def _write(path: Path, text: str) -> None:
     """Write text, or InputError when the path cannot be written."""
+    _write_bytes(path, text.encode())
+
+
+def _write_bytes(path: Path, data: bytes) -> None:
+    """Write bytes, or InputError when the path cannot be written."""
     try:
-        path.write_text(text)
+        path.write_bytes(data)
     except OSError as exc:
         raise InputError(f"{path}: {exc.strerror or exc}") from None
 

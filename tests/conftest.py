@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import os
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -55,3 +58,84 @@ def tmp_cwd(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
     """Run in a temporary directory."""
     monkeypatch.chdir(tmp_path)
     return tmp_path
+
+
+# ---------------------------------------------------------------- the service's real parts
+
+REDIS_TEST_URL = "redis://127.0.0.1:6379/15"
+"""The machine's Redis, db 15: flushed before and after each service test, nothing else."""
+
+
+@pytest.fixture(scope="session")
+def redis_url() -> Iterator[str]:
+    """A real Redis: the one on 127.0.0.1:6379 (db 15) where it listens, else an embedded one."""
+    from redis import Redis
+    from redis.exceptions import ConnectionError
+
+    try:
+        Redis.from_url(REDIS_TEST_URL, socket_connect_timeout=1).ping()
+        yield REDIS_TEST_URL
+    except ConnectionError:
+        from worker.embedded import EmbeddedRedis
+
+        with EmbeddedRedis() as server:
+            yield server.url
+
+
+@pytest.fixture
+def redis_db(redis_url: str) -> Iterator[Any]:
+    """A connection to the test db, flushed before and after the test."""
+    from redis import Redis
+
+    conn = Redis.from_url(redis_url)
+    conn.flushdb()
+    yield conn
+    conn.flushdb()
+    conn.close()
+
+
+@pytest.fixture
+def svc_env(
+    redis_db: Any, redis_url: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> dict[str, str]:
+    """VPP_* of the API and its workers in one test: test Redis, a fresh store, small chunks."""
+    env = {
+        "VPP_REDIS_URL": redis_url,
+        "VPP_STORE_URL": str(tmp_path / "store"),
+        "VPP_CHUNK_VIEWS": "10",
+        "VPP_THREADS": "1",
+        "VPP_RETRY_AFTER_S": "1",
+        "VPP_QUEUE": f"vpp-test-{os.getpid()}",  # two test runs at once do not share jobs
+    }
+    for k, v in env.items():
+        monkeypatch.setenv(k, v)
+    return env
+
+
+@pytest.fixture
+def api(svc_env: dict[str, str]) -> Iterator[Any]:
+    """A TestClient of the app wired to the test Redis and store (no workers yet)."""
+    from fastapi.testclient import TestClient
+
+    from service.app import create_app
+    from worker.settings import Settings
+
+    with TestClient(create_app(Settings())) as client:
+        yield client
+
+
+@pytest.fixture
+def start_workers(svc_env: dict[str, str]) -> Iterator[Any]:
+    """start(n): n real forking RQ worker processes on the test queue, stopped after the test."""
+    from worker.pool import start_workers as start
+    from worker.pool import stop_workers
+
+    procs: list[Any] = []
+
+    def run(n: int = 1, burst: bool = False) -> list[Any]:
+        new = start(svc_env["VPP_REDIS_URL"], n, threads=1, burst=burst, prefix="test")
+        procs.extend(new)
+        return new
+
+    yield run
+    stop_workers(procs, wait_s=5)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field
 
 from vpp_core.metrics import Metrics
 from vpp_core.sensor import Sensor
@@ -40,6 +40,21 @@ class ViewpointIn(_Strict):
     up: Vec3 | None = None
 
 
+class ExplicitCandidates(_Strict):
+    """An explicit candidate list; a bare JSON list of viewpoints is read as this."""
+
+    viewpoints: list[ViewpointIn] = Field(min_length=1)
+
+
+def _wrap_list(value: object) -> object:
+    """A bare list of viewpoints means {"viewpoints": list}."""
+    return {"viewpoints": value} if isinstance(value, list) else value
+
+
+Candidates = Annotated[CandidateGenerator | ExplicitCandidates, BeforeValidator(_wrap_list)]
+"""Generator settings or an explicit list of viewpoints."""
+
+
 class SolverSettings(_Strict):
     """Set-cover solver: exact MILP (HiGHS) or greedy with redundancy removal."""
 
@@ -53,7 +68,7 @@ class PlanRequest(_Strict):
 
     sensor: Sensor = Sensor()
     target: Target = Target()
-    candidates: CandidateGenerator | list[ViewpointIn] = CandidateGenerator()
+    candidates: Candidates = Field(default_factory=CandidateGenerator)
     solver: SolverSettings = SolverSettings()
 
 
@@ -136,6 +151,9 @@ class RaysInfo(BaseModel):
     cast: int
     valid: int
     cast_per_s: float
+    trace_s: float = 0.0
+    reused: bool = False
+    """True when R came from an earlier plan with the same mesh, sensor and candidates."""
 
 
 class PlanDocument(BaseModel):

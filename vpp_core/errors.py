@@ -5,7 +5,10 @@ VppError                 anything the caller can fix by changing the input
 ├── SensorError          the camera specification is nonsense (fov >= 180, near >= far, ...)
 ├── ViewpointError       a viewpoint is malformed (zero gaze, up parallel to gaze, NaN)
 ├── LimitError           the request exceeds a configured limit (faces, candidates, rays)
-└── SolverError          the set cover cannot be solved (no coverable face, infeasible model)
+│   └── TooLargeError    an upload exceeds the byte limit
+├── SolverError          the set cover cannot be solved (no coverable face, infeasible model)
+├── NotFoundError        a referenced resource (mesh, plan, job, artifact) does not exist
+└── UnavailableError     a dependency (queue, store) cannot be reached; retry later
 """
 
 from __future__ import annotations
@@ -49,3 +52,21 @@ class SolverError(VppError):
     """The covering problem cannot be solved as posed."""
 
     title = "Unsolvable cover"
+
+
+class TooLargeError(LimitError):
+    """An upload exceeds the configured byte limit."""
+
+    title = "Payload too large"
+
+
+class NotFoundError(VppError):
+    """A referenced resource does not exist."""
+
+    title = "Not found"
+
+
+class UnavailableError(VppError):
+    """A dependency (queue, store) cannot be reached."""
+
+    title = "Service unavailable"

@@ -65,9 +65,9 @@ def candidates_for(
             decimate=spec.decimate,
         )
         return gen.views, info
-    return explicit_viewpoints(spec), CandidateInfo(
-        source="explicit", requested=len(spec), generated=len(spec)
-    )
+    n = len(spec.viewpoints)
+    info = CandidateInfo(source="explicit", requested=n, generated=n)
+    return explicit_viewpoints(spec.viewpoints), info
 
 
 def explicit_viewpoints(items: list[ViewpointIn]) -> Viewpoints:
@@ -105,8 +105,8 @@ def solve(model: CoverModel, settings: SolverSettings, threads: int | None = Non
 class _Clock:
     """Wall time per stage, reported to an optional progress callback."""
 
-    def __init__(self, progress: Progress | None) -> None:
-        self.timings = Timings()
+    def __init__(self, progress: Progress | None, timings: Timings | None = None) -> None:
+        self.timings = timings or Timings()
         self.progress = progress
 
     @contextmanager
@@ -142,10 +142,28 @@ def plan(
         trace = trace_counts(
             part, request.sensor, views, backend=backend, threads=threads, progress=done
         )
-        counts = trace.counts
+    return finish(
+        part, request, views, info, trace, timings=clock.timings, threads=threads, progress=progress
+    )
+
+
+def finish(
+    part: Part,
+    request: PlanRequest,
+    views: Viewpoints,
+    info: CandidateInfo,
+    trace: Trace,
+    *,
+    timings: Timings | None = None,
+    threads: int | None = None,
+    progress: Progress | None = None,
+    reused: bool = False,
+) -> PlanDocument:
+    """From R on: matrices, cover, visiting order, metrics and the document."""
+    clock = _Clock(progress, timings)
     with clock.stage("matrices"):
         model = cover_model(
-            counts,
+            trace.counts,
             part.areas,
             part.counted,
             request.target.resolution_mm,
@@ -154,10 +172,9 @@ def plan(
     with clock.stage("solve"):
         result = solve(model, request.solver, threads)
     with clock.stage("metrics"):
-        doc = document(
-            part, request, views, info, trace, model, result, clock.timings, backend.name
-        )
+        doc = document(part, request, views, info, trace, model, result, clock.timings)
     doc.timings_s.metrics = clock.timings.metrics
+    doc.rays.reused = reused
     return doc
 
 
@@ -182,7 +199,7 @@ def document(
     model: CoverModel,
     result: CoverResult,
     timings: Timings,
-    backend_name: str,
+    backend_name: str = "embree",
 ) -> PlanDocument:
     """Assemble the plan document from the stages' results."""
     order = visiting_order(views.positions[result.selected])
@@ -224,7 +241,8 @@ def document(
             pixels=trace.pixels,
             cast=trace.rays_cast,
             valid=int(trace.counts.sum()),
-            cast_per_s=trace.rays_cast / max(timings.trace, 1e-9),
+            cast_per_s=trace.rays_cast / max(trace.seconds, 1e-9),
+            trace_s=round(trace.seconds, 4),
         ),
         timings_s=timings,
     )

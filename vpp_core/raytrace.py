@@ -11,8 +11,9 @@ from __future__ import annotations
 
 import math
 import os
+import time
 from collections import deque
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Protocol
@@ -79,6 +80,18 @@ class Trace:
     counts: sp.csc_array  # (M faces, N views) int32 valid rays per face and view
     rays_cast: int  # rays actually traced (pixels whose ray can reach the part)
     pixels: int  # N × pixels per view: the rays a plain per-pixel tracer would cast
+    seconds: float = 0.0  # wall time of the tracing
+
+
+def join_traces(parts: Sequence[Trace], seconds: float) -> Trace:
+    """One trace from traces of consecutive view ranges (columns side by side), `seconds` wall."""
+    counts = sp.hstack([t.counts for t in parts], format="csc").astype(np.int32)
+    return Trace(
+        sp.csc_array(counts),
+        sum(t.rays_cast for t in parts),
+        sum(t.pixels for t in parts),
+        seconds,
+    )
 
 
 @dataclass(frozen=True)
@@ -103,6 +116,7 @@ def trace_counts(
     cull: bool = True,
 ) -> Trace:
     """R for every view; with `cull`, only pixels inside the image of the part's hull are traced."""
+    start = time.perf_counter()
     backend = backend or make_backend(part)
     rotations = views.rotations()
     cos_min = math.cos(math.radians(sensor.max_incidence_deg))
@@ -143,7 +157,8 @@ def trace_counts(
                 if progress:
                     progress(1)
     counts = _assemble(columns, part.n_faces)
-    return Trace(counts, sum(c.size for c in tasks), len(views) * sensor.n_pixels)
+    pixels = len(views) * sensor.n_pixels
+    return Trace(counts, sum(c.size for c in tasks), pixels, time.perf_counter() - start)
 
 
 HULL_CELLS = 32

@@ -1,0 +1,65 @@
+"""`vpp serve` and `vpp worker`: the service's processes."""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+from contextlib import ExitStack
+from types import FrameType
+
+import uvicorn
+
+from service.app import create_app
+from vpp_core.errors import VppError
+from worker.embedded import EmbeddedRedis
+from worker.pool import start_workers, stop_workers
+from worker.settings import get_settings
+
+
+def run_serve(args: argparse.Namespace) -> int:
+    """The API; without VPP_REDIS_URL also an embedded Redis and local workers."""
+    settings = get_settings()
+    with ExitStack() as stack:
+        url, note = settings.redis_url, "API only: workers run with `vpp worker`"
+        if not url:
+            redis = stack.enter_context(EmbeddedRedis())
+            count = args.workers or settings.workers
+            procs = start_workers(redis.url, count, settings.threads)
+            stack.callback(stop_workers, procs)
+            url, note = redis.url, f"embedded Redis, {count} local workers"
+        app = create_app(settings.model_copy(update={"redis_url": url}))
+        print(
+            f"vpp serve: http://{args.host}:{args.port}  ({note}; store {app.state.store.url})",
+            file=sys.stderr,
+        )
+        # uvicorn re-raises SIGTERM after its graceful shutdown: make that an exit that
+        # unwinds the stack (workers stopped, embedded Redis shut down), not a sudden death
+        signal.signal(signal.SIGTERM, _exit)
+        uvicorn.run(app, host=args.host, port=args.port, log_level="info")
+    return 0
+
+
+def _exit(signum: int, frame: FrameType | None) -> None:
+    sys.exit(0)
+
+
+def run_workers(args: argparse.Namespace) -> int:
+    """Worker processes on a shared Redis until SIGTERM/SIGINT (or until idle with --burst)."""
+    settings = get_settings()
+    url = args.url or settings.redis_url
+    if not url:
+        raise VppError("no Redis to work for: set VPP_REDIS_URL or pass --url")
+    procs = start_workers(url, args.workers or settings.workers, settings.threads, args.burst)
+
+    def stop(signum: int, frame: FrameType | None) -> None:
+        stop_workers(procs)
+        sys.exit(0)
+
+    signal.signal(signal.SIGTERM, stop)
+    try:
+        codes = [p.wait() for p in procs]
+    except KeyboardInterrupt:
+        stop_workers(procs)
+        return 130
+    return max(codes, default=0)

@@ -1,0 +1,61 @@
+"""The FastAPI application: routers, problem+json errors, upload cap, Redis and store."""
+
+from __future__ import annotations
+
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+
+from fastapi import FastAPI
+from fastapi.routing import APIRoute
+from redis import Redis
+
+from service import problems
+from service.routers import health, jobs, meshes, plans
+from worker.queue import make_queue
+from worker.settings import Settings, get_settings
+from worker.store import open_store
+
+API_VERSION = "1.0.0"
+MULTIPART_SLACK_BYTES = 64 * 1024
+"""Room for the multipart envelope around a file of exactly the upload limit."""
+REDIS_TIMEOUT_S = 10
+"""Socket timeouts of the API's Redis connection: a stuck Redis gives 503, not a hung request."""
+
+
+def _operation_id(route: APIRoute) -> str:
+    """Clean operation ids for generated clients: the handler's name (upload_mesh, get_job...)."""
+    return route.name
+
+
+def create_app(settings: Settings | None = None) -> FastAPI:
+    """The API wired to the settings' Redis and store (settings read from VPP_* by default)."""
+    settings = settings or get_settings()
+    if not settings.redis_url:
+        raise ValueError("the API needs VPP_REDIS_URL (`vpp serve` starts an embedded Redis)")
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        yield
+        app.state.redis.close()
+
+    app = FastAPI(
+        title="vpp — inspection viewpoint planning",
+        version=API_VERSION,
+        description="Upload a part's mesh, ask for a plan, poll the job, fetch the plan (SPEC §6).",
+        generate_unique_id_function=_operation_id,
+        lifespan=lifespan,
+        max_body_size=settings.max_upload_bytes + MULTIPART_SLACK_BYTES,
+    )
+    conn = Redis.from_url(
+        settings.redis_url,
+        socket_connect_timeout=REDIS_TIMEOUT_S,
+        socket_timeout=REDIS_TIMEOUT_S,
+    )
+    app.state.settings = settings
+    app.state.redis = conn
+    app.state.queue = make_queue(conn, settings)
+    app.state.store = open_store(settings.store_url)
+    problems.install(app)
+    for router in (meshes.router, plans.router, jobs.router, health.router):
+        app.include_router(router)
+    return app

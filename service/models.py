@@ -1,0 +1,93 @@
+"""Request and response bodies of the HTTP API (the plan document itself is vpp_core's)."""
+
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from vpp_core.document import PlanRequest
+
+
+class MeshSummary(BaseModel):
+    """An uploaded mesh: content id (SHA-256 of the canonical geometry) and what it holds."""
+
+    id: str
+    faces: int
+    vertices: int
+    counted_faces: int
+    area_mm2: float
+    bounds_mm: list[list[float]] = Field(description="[[xmin, ymin, zmin], [xmax, ymax, zmax]]")
+    units: str = Field(description="units of the uploaded file; the mesh is stored in mm")
+    warnings: list[str]
+
+
+class PlanSubmit(PlanRequest):
+    """A plan request: the uploaded mesh's id plus the plan settings (defaults as `vpp plan`)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    mesh_id: str = Field(pattern=r"^[0-9a-f]{64}$")
+
+
+class JobAccepted(BaseModel):
+    """The job computing a plan; poll its Location."""
+
+    id: str
+    status: Literal["queued", "running", "succeeded", "failed", "canceled"]
+
+
+class Progress(BaseModel):
+    """Where the job is: stage (candidates, trace, matrices, solve, metrics, done), done/total."""
+
+    stage: str | None = None
+    done: int | None = None
+    total: int | None = None
+
+
+class JobError(BaseModel):
+    """Why a job failed."""
+
+    type: str
+    title: str
+    detail: str
+
+
+class Chunk(BaseModel):
+    """A ray-tracing chunk of the job: its candidates, state and the worker that took it."""
+
+    model_config = ConfigDict(extra="allow")
+
+    index: int
+    views: int
+    status: str
+    worker: str | None = None
+    done: int | None = None
+
+
+class JobOut(BaseModel):
+    """A plan job as clients poll it; `result_url` is set once the plan is ready."""
+
+    id: str
+    status: Literal["queued", "running", "succeeded", "failed", "canceled"]
+    progress: Progress
+    error: JobError | None = None
+    result_url: str | None = None
+    chunks: list[Chunk] = []
+    created_at: datetime | None = None
+    started_at: datetime | None = None
+    ended_at: datetime | None = None
+
+
+class Problem(BaseModel):
+    """RFC 9457 problem details (application/problem+json)."""
+
+    model_config = ConfigDict(extra="allow")
+
+    type: str = "about:blank"
+    title: str
+    status: int
+    detail: str | None = None
+    instance: str | None = None
+    errors: list[dict[str, Any]] | None = None

@@ -1,0 +1,102 @@
+"""What the routes do, without HTTP: upload a mesh, submit a plan, describe a job."""
+
+from __future__ import annotations
+
+from pathlib import PurePath
+from typing import BinaryIO
+
+from redis import Redis
+from rq import Queue
+
+from service.models import JobOut, MeshSummary, PlanSubmit
+from vpp_core.document import CandidateGenerator, PlanRequest
+from vpp_core.errors import TooLargeError, VppError
+from vpp_core.mesh import load_mesh
+from vpp_core.plan import check_limits, explicit_viewpoints
+from worker import artifacts as art
+from worker import queue as jobs
+from worker.settings import Settings
+from worker.store import Store
+
+READ_CHUNK = 1 << 20
+"""Bytes read from an upload at a time."""
+
+
+def read_upload(file: BinaryIO, max_bytes: int) -> bytes:
+    """The upload's bytes; TooLargeError as soon as they exceed `max_bytes`."""
+    parts, size = [], 0
+    while chunk := file.read(READ_CHUNK):
+        size += len(chunk)
+        if size > max_bytes:
+            raise TooLargeError(f"upload exceeds the limit of {max_bytes} bytes")
+        parts.append(chunk)
+    return b"".join(parts)
+
+
+def upload_mesh(
+    store: Store, settings: Settings, data: bytes, filename: str | None, fmt: str | None, units: str
+) -> MeshSummary:
+    """Check and store a mesh; the same geometry again gives the same id and stores nothing."""
+    file_type = fmt or PurePath(filename or "").suffix.lstrip(".") or "stl"
+    part = load_mesh(data, file_type, units, max_faces=settings.max_faces)
+    key = art.summary_key(part.id)
+    if store.exists(key) and store.exists(art.mesh_key(part.id)):
+        return MeshSummary.model_validate_json(store.get(key))
+    summary = MeshSummary(
+        id=part.id,
+        faces=part.n_faces,
+        vertices=len(part.vertices),
+        counted_faces=int(part.counted.sum()),
+        area_mm2=part.area_mm2,
+        bounds_mm=part.bounds.tolist(),
+        units=units,
+        warnings=list(part.warnings),
+    )
+    art.put_part(store, part)
+    store.put(key, summary.model_dump_json().encode())
+    return summary
+
+
+def get_mesh(store: Store, mesh_id: str) -> MeshSummary:
+    """The summary of an uploaded mesh (NotFoundError when unknown)."""
+    return MeshSummary.model_validate_json(store.get(art.summary_key(mesh_id)))
+
+
+def submit_plan(store: Store, queue: Queue, settings: Settings, body: PlanSubmit) -> str:
+    """Check the request, store it and enqueue its job unless the plan exists; the plan id."""
+    request = PlanRequest.model_validate(body.model_dump(exclude={"mesh_id"}))
+    if not store.exists(art.mesh_key(body.mesh_id)):
+        raise VppError(f"mesh_id {body.mesh_id}: no such mesh; upload it with POST /v1/meshes")
+    spec = request.candidates
+    if isinstance(spec, CandidateGenerator):
+        check_limits(spec.count, request.sensor.n_pixels, settings.limits())
+    else:
+        check_limits(len(spec.viewpoints), request.sensor.n_pixels, settings.limits())
+        explicit_viewpoints(spec.viewpoints)  # ViewpointError now, not in the job
+    plan = art.plan_id(body.mesh_id, request)
+    if not store.exists(art.plan_key(plan)):
+        art.put_request(store, plan, body.mesh_id, request)
+        jobs.submit(queue, settings, plan)
+    return plan
+
+
+def job_out(conn: Redis, store: Store, plan: str) -> JobOut:
+    """The job resource of plan `plan`."""
+    state = jobs.state(conn, store, plan)
+    out = JobOut.model_validate(
+        {**state.__dict__, "progress": state.progress or {}, "error": state.error}
+    )
+    if state.status == "succeeded":
+        out.result_url = f"/v1/plans/{plan}"
+    return out
+
+
+def cancel_job(conn: Redis, store: Store, plan: str) -> JobOut:
+    """Cancel the job of plan `plan`; its resource afterwards."""
+    jobs.cancel(conn, store, plan)
+    return job_out(conn, store, plan)
+
+
+def plan_json(store: Store, plan: str) -> bytes:
+    """The stored plan document (NotFoundError while it is not computed)."""
+    return store.get(art.plan_key(plan))

@@ -1,0 +1,47 @@
+"""/v1/meshes: upload a part once, refer to it by its content id."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import APIRouter, File, Form, Response, UploadFile
+
+from service import planning
+from service.deps import SettingsDep, StoreDep
+from service.models import MeshSummary, Problem
+
+router = APIRouter(prefix="/v1/meshes", tags=["meshes"])
+ERRORS = {c: {"model": Problem, "content": {"application/problem+json": {}}} for c in (413, 422)}
+
+
+@router.post("", status_code=201, response_model=MeshSummary, responses=ERRORS)  # type: ignore[arg-type]
+def upload_mesh(
+    response: Response,
+    store: StoreDep,
+    settings: SettingsDep,
+    file: Annotated[
+        UploadFile,
+        File(
+            description="STL, OBJ, PLY, OFF, GLB or GLTF",
+            json_schema_extra={"format": "binary"},  # what client generators read as a file
+        ),
+    ],
+    units: Annotated[str, Form(description="units of the file: mm, cm, m, in")] = "mm",
+    format: Annotated[
+        str | None, Form(description="format when the filename does not tell")
+    ] = None,
+) -> MeshSummary:
+    """Upload a mesh; the same geometry again gives the same id and stores nothing new."""
+    data = planning.read_upload(file.file, settings.max_upload_bytes)
+    summary = planning.upload_mesh(store, settings, data, file.filename, format, units)
+    response.headers["Location"] = f"/v1/meshes/{summary.id}"
+    response.headers["ETag"] = f'"{summary.id}"'
+    return summary
+
+
+@router.get("/{mesh_id}", response_model=MeshSummary, responses={404: {"model": Problem}})
+def get_mesh(mesh_id: str, store: StoreDep, response: Response) -> MeshSummary:
+    """The summary of an uploaded mesh."""
+    summary = planning.get_mesh(store, mesh_id)
+    response.headers["ETag"] = f'"{summary.id}"'
+    return summary

@@ -1,0 +1,130 @@
+"""Plans through the API with real forking RQ workers on a real Redis: results, reuse, fan-out,
+cancel and failure."""
+
+from __future__ import annotations
+
+import os
+import time
+
+import pytest
+from rq.registry import StartedJobRegistry
+
+from vpp_core.document import PlanDocument, PlanRequest
+from vpp_core.mesh import load_mesh
+from vpp_core.plan import plan
+from vpp_core.samples import sample_stl
+
+pytestmark = pytest.mark.slow
+
+
+def upload_sample(api) -> str:
+    r = api.post("/v1/meshes", files={"file": ("bushing.stl", sample_stl())})
+    assert r.status_code == 201, r.text
+    return str(r.json()["id"])
+
+
+def submit(api, body: dict) -> str:
+    r = api.post("/v1/plans", json=body)
+    assert r.status_code == 202, r.text
+    return str(r.json()["id"])
+
+
+def wait(api, job: str, until=("succeeded", "failed", "canceled"), timeout: float = 120) -> dict:
+    """Poll the job until its status is in `until`; its last body."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        body = api.get(f"/v1/jobs/{job}").json()
+        if body["status"] in until:
+            return body
+        time.sleep(0.1)
+    raise AssertionError(f"job {job} still {body['status']} after {timeout} s: {body}")
+
+
+def same_plan(a: PlanDocument, b: PlanDocument) -> None:
+    """Everything but timings and ray rates is identical."""
+    drop = {"timings_s": True, "rays": {"cast_per_s", "trace_s", "reused"}, "solver": {"time_s"}}
+    assert a.model_dump(exclude=drop) == b.model_dump(exclude=drop)
+
+
+def test_plan_matches_in_process_planner_and_two_workers_share_chunks(api, start_workers) -> None:
+    mesh = upload_sample(api)
+    body = {
+        "mesh_id": mesh,
+        "candidates": {"count": 80, "seed": 3},
+        "target": {"resolution_mm": 0.3},
+    }
+    job = submit(api, body)
+    start_workers(2)
+    done = wait(api, job)
+    assert done["status"] == "succeeded", done
+    assert done["result_url"] == f"/v1/plans/{job}"
+    workers = {c["worker"] for c in done["chunks"]}
+    assert len(done["chunks"]) == 8 and len(workers) == 2, done["chunks"]
+    served = PlanDocument.model_validate_json(api.get(done["result_url"]).content)
+    request = PlanRequest.model_validate({k: v for k, v in body.items() if k != "mesh_id"})
+    local = plan(load_mesh(sample_stl(), "stl"), request, threads=1)
+    same_plan(served, local)
+    assert served.solver.status == "optimal" and not served.rays.reused
+
+
+def test_identical_request_is_answered_from_the_store_and_new_target_reuses_r(
+    api, start_workers
+) -> None:
+    mesh = upload_sample(api)
+    body = {"mesh_id": mesh, "candidates": {"count": 60}}
+    job = submit(api, body)
+    start_workers(1)
+    first = wait(api, job)
+    assert first["status"] == "succeeded"
+    again = api.post("/v1/plans", json=body)
+    assert again.status_code == 202 and again.json() == {"id": job, "status": "succeeded"}
+    assert api.get(f"/v1/jobs/{job}").json()["started_at"] == first["started_at"]  # not rerun
+    other = submit(api, {**body, "target": {"resolution_mm": 0.05, "formulation": "density"}})
+    second = wait(api, other)
+    assert second["status"] == "succeeded" and second["chunks"] == []  # no ray tracing
+    doc = api.get(second["result_url"]).json()
+    assert doc["rays"]["reused"] is True and doc["timings_s"]["trace"] == 0
+    assert doc["target"]["resolution_mm"] == 0.05
+    r = api.get(second["result_url"], headers={"If-None-Match": f'"{other}"'})
+    assert r.status_code == 304
+
+
+def test_cancel_stops_a_running_job_and_a_resubmission_resumes(
+    api, start_workers, redis_db
+) -> None:
+    mesh = upload_sample(api)
+    body = {"mesh_id": mesh, "candidates": {"count": 600, "seed": 1}}
+    job = submit(api, body)
+    start_workers(1)
+    deadline = time.monotonic() + 60
+    while True:  # until some chunks are traced
+        state = api.get(f"/v1/jobs/{job}").json()
+        if state["progress"].get("stage") == "trace" and state["progress"]["done"] >= 20:
+            break
+        assert time.monotonic() < deadline, state
+        time.sleep(0.05)
+    assert state["status"] == "running" and state["progress"]["total"] >= 500
+    r = api.delete(f"/v1/jobs/{job}")
+    assert r.status_code == 200 and r.json()["status"] == "canceled", r.json()
+    time.sleep(1.0)
+    assert wait(api, job)["status"] == "canceled"
+    assert (
+        StartedJobRegistry(os.environ["VPP_QUEUE"], connection=redis_db).get_job_ids() == []
+    )  # nothing runs
+    resumed = submit(api, body)
+    assert resumed == job
+    done = wait(api, job)
+    assert done["status"] == "succeeded"
+    assert any(c["worker"] == "store" for c in done["chunks"])  # traced before the cancel
+
+
+def test_a_failed_chunk_fails_the_plan_with_its_reason(api, start_workers, monkeypatch) -> None:
+    monkeypatch.setenv("VPP_CHUNK_TIMEOUT_S", "1")
+    monkeypatch.setenv("VPP_CHUNK_VIEWS", "300")
+    mesh = upload_sample(api)
+    job = submit(api, {"mesh_id": mesh, "candidates": {"count": 600, "seed": 2}})
+    start_workers(2)
+    done = wait(api, job)
+    assert done["status"] == "failed", done
+    assert "chunk" in done["error"]["detail"] and "timeout" in done["error"]["detail"].lower()
+    assert api.get(f"/v1/plans/{job}").status_code == 404

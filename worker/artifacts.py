@@ -1,0 +1,179 @@
+"""What the store holds and under which content keys: meshes, plan requests, candidates, R, plans.
+
+meshes/<mesh id>.npz            the checked Part (arrays + id + warnings)
+meshes/<mesh id>.json           its summary (what GET /v1/meshes/{id} answers)
+requests/<plan id>.json         {"mesh_id", "request"}: what a plan job computes
+traces/<trace id>/views.npz     candidate poses and their CandidateInfo
+traces/<trace id>/chunks-<size>/<i>.npz  R of candidates [i·size, (i+1)·size)
+traces/<trace id>/counts.npz    the assembled R (M faces × N candidates) and its ray figures
+plans/<plan id>.json            the plan document (SPEC §8)
+
+The plan id hashes the mesh id and the whole normalised request; the trace id only what R
+depends on (mesh, sensor, candidates, backend), so another resolution, formulation or solver
+setting reuses R.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+from typing import Any
+
+import numpy as np
+import scipy.sparse as sp
+
+from vpp_core.document import CandidateInfo, PlanDocument, PlanRequest
+from vpp_core.mesh import Part
+from vpp_core.pose import Viewpoints
+from vpp_core.raytrace import Trace
+from vpp_core.sensor import Sensor
+from worker.store import Store
+
+BACKEND = "embree"
+"""The ray backend whose R is stored; part of the trace id."""
+
+
+def digest(obj: Any) -> str:
+    """SHA-256 hex of the canonical JSON of `obj` (sorted keys, no spaces)."""
+    text = json.dumps(obj, sort_keys=True, separators=(",", ":"), allow_nan=False)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def plan_id(mesh_id: str, request: PlanRequest) -> str:
+    """Content id of a plan: the mesh and every setting of the request, defaults filled in."""
+    return digest(
+        {"kind": "plan/1", "mesh_id": mesh_id, "request": request.model_dump(mode="json")}
+    )
+
+
+def trace_id(mesh_id: str, request: PlanRequest) -> str:
+    """Content id of R: mesh, sensor, candidates and backend (not target or solver)."""
+    dump = request.model_dump(mode="json", include={"sensor", "candidates"})
+    return digest({"kind": "trace/1", "mesh_id": mesh_id, "backend": BACKEND, **dump})
+
+
+def mesh_key(mesh_id: str) -> str:
+    return f"meshes/{mesh_id}.npz"
+
+
+def request_key(plan: str) -> str:
+    return f"requests/{plan}.json"
+
+
+def plan_key(plan: str) -> str:
+    return f"plans/{plan}.json"
+
+
+def views_key(trace: str) -> str:
+    return f"traces/{trace}/views.npz"
+
+
+def chunk_key(trace: str, size: int, index: int) -> str:
+    return f"traces/{trace}/chunks-{size}/{index:05d}.npz"
+
+
+def summary_key(mesh_id: str) -> str:
+    return f"meshes/{mesh_id}.json"
+
+
+def counts_key(trace: str) -> str:
+    return f"traces/{trace}/counts.npz"
+
+
+def _npz(**arrays: Any) -> bytes:
+    buf = io.BytesIO()
+    np.savez(buf, **arrays)
+    return buf.getvalue()
+
+
+def _unnpz(data: bytes) -> dict[str, np.ndarray]:
+    with np.load(io.BytesIO(data), allow_pickle=False) as z:
+        return {k: z[k] for k in z.files}
+
+
+def put_part(store: Store, part: Part) -> None:
+    """Store the checked part under its content id."""
+    store.put(
+        mesh_key(part.id),
+        _npz(
+            vertices=part.vertices,
+            faces=part.faces,
+            areas=part.areas,
+            normals=part.normals,
+            counted=part.counted,
+            representative=part.representative,
+            meta=np.array(json.dumps({"id": part.id, "warnings": list(part.warnings)})),
+        ),
+    )
+
+
+def get_part(store: Store, mesh_id: str) -> Part:
+    """The stored part (NotFoundError when no mesh has this id)."""
+    z = _unnpz(store.get(mesh_key(mesh_id)))
+    meta = json.loads(str(z.pop("meta")))
+    for a in z.values():
+        a.setflags(write=False)
+    return Part(**z, id=meta["id"], warnings=tuple(meta["warnings"]))
+
+
+def put_request(store: Store, plan: str, mesh_id: str, request: PlanRequest) -> None:
+    """Store what the plan job `plan` must compute."""
+    body = {"mesh_id": mesh_id, "request": request.model_dump(mode="json")}
+    store.put(request_key(plan), json.dumps(body).encode())
+
+
+def get_request(store: Store, plan: str) -> tuple[str, PlanRequest]:
+    """(mesh id, request) of the plan job `plan`."""
+    body = json.loads(store.get(request_key(plan)))
+    return body["mesh_id"], PlanRequest.model_validate(body["request"])
+
+
+def put_views(
+    store: Store, trace: str, sensor: Sensor, views: Viewpoints, info: CandidateInfo
+) -> None:
+    """Store the sensor and candidates of a trace."""
+    data = _npz(
+        positions=views.positions,
+        gazes=views.gazes,
+        ups=views.ups,
+        info=np.array(info.model_dump_json()),
+        sensor=np.array(sensor.model_dump_json()),
+    )
+    store.put(views_key(trace), data)
+
+
+def get_views(store: Store, trace: str) -> tuple[Sensor, Viewpoints, CandidateInfo]:
+    """The sensor and candidates of a trace."""
+    z = _unnpz(store.get(views_key(trace)))
+    info = CandidateInfo.model_validate_json(str(z["info"]))
+    sensor = Sensor.model_validate_json(str(z["sensor"]))
+    return sensor, Viewpoints(z["positions"], z["gazes"], z["ups"]), info
+
+
+def trace_bytes(trace: Trace) -> bytes:
+    """R and its figures as npz bytes."""
+    c = trace.counts
+    figures = [trace.rays_cast, trace.pixels]
+    return _npz(
+        data=c.data,
+        indices=c.indices,
+        indptr=c.indptr,
+        shape=np.array(c.shape),
+        figures=np.array(figures, np.int64),
+        seconds=np.array(trace.seconds),
+    )
+
+
+def trace_from_bytes(data: bytes) -> Trace:
+    """Inverse of trace_bytes."""
+    z = _unnpz(data)
+    shape = (int(z["shape"][0]), int(z["shape"][1]))
+    counts = sp.csc_array((z["data"], z["indices"], z["indptr"]), shape=shape)
+    rays_cast, pixels = (int(x) for x in z["figures"])
+    return Trace(counts, rays_cast, pixels, float(z["seconds"]))
+
+
+def put_plan(store: Store, plan: str, doc: PlanDocument) -> None:
+    """Store the plan document."""
+    store.put(plan_key(plan), doc.model_dump_json().encode())

@@ -1,0 +1,334 @@
+"""RQ job functions (thin): load inputs by key, call vpp_core, store the result, return a dict.
+
+`plan_job(plan)` runs the whole pipeline for one plan. Its ray tracing is fanned out: the
+candidates are cut into chunks, each enqueued as a `chunk_job` that any worker can take;
+the plan job takes back (LREM, atomic against the workers' LMOVE) and traces itself every
+chunk no other worker has started, so one worker alone finishes too, and it waits for the
+rest. A failed chunk fails the plan with its reason. Finished chunks stay in the store, so
+a cancelled or crashed plan resumes where it stopped; R is traced once per trace id.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from redis import Redis
+from rq import Queue, get_current_job
+from rq.job import Job, JobStatus
+
+from vpp_core.document import PlanRequest
+from vpp_core.errors import VppError
+from vpp_core.mesh import Part
+from vpp_core.plan import candidates_for, check_limits, finish
+from vpp_core.pose import Viewpoints
+from vpp_core.raytrace import RayBackend, Trace, join_traces, make_backend, trace_counts
+from vpp_core.sensor import Sensor
+from worker import artifacts as art
+from worker.settings import Settings, get_settings
+from worker.store import Store, open_store
+from worker.tracelock import TraceLock
+
+META_INTERVAL_S = 0.5
+"""Least seconds between two progress writes of one job (Redis round trips)."""
+POLL_S = 0.25
+"""Seconds between two looks at the chunks other workers run."""
+CLEANUP_S = 15.0
+"""Seconds between two sweeps for chunks whose worker died (abandoned jobs)."""
+FAILED = {JobStatus.FAILED, JobStatus.STOPPED, JobStatus.CANCELED}
+
+
+class _Meta:
+    """The current job's progress in its meta, written at most every META_INTERVAL_S."""
+
+    def __init__(self, job: Job) -> None:
+        self.job = job
+        self.last = 0.0
+
+    def update(self, force: bool = False, **fields: Any) -> None:
+        self.job.meta.update(fields)
+        now = time.monotonic()
+        if force or now - self.last >= META_INTERVAL_S:
+            self.job.save_meta()  # type: ignore[no-untyped-call]
+            self.last = now
+
+
+@dataclass
+class _Context:
+    """What a job works with: settings, store, its RQ job, queue and progress."""
+
+    settings: Settings
+    store: Store
+    job: Job
+    queue: Queue
+    meta: _Meta
+
+    @classmethod
+    def current(cls) -> _Context:
+        job = get_current_job()
+        if job is None:
+            raise RuntimeError("not running inside an RQ job")
+        settings = get_settings()
+        queue = Queue(job.origin, connection=job.connection)
+        return cls(settings, open_store(settings.store_url), job, queue, _Meta(job))
+
+
+def plan_job(plan: str) -> dict[str, Any]:
+    """Compute and store the plan `plan` (its request is in the store); returns a summary."""
+    ctx = _Context.current()
+    try:
+        return _plan(ctx, plan)
+    except BaseException as exc:
+        ctx.meta.update(force=True, error=error_record(exc))
+        raise
+
+
+def error_record(exc: BaseException) -> dict[str, str]:
+    """{type, title, detail} of an exception, for clients."""
+    if isinstance(exc, VppError):
+        return {"type": type(exc).__name__, "title": exc.title, "detail": exc.detail}
+    return {"type": "InternalError", "title": "Internal error", "detail": f"{exc!r}"}
+
+
+def _plan(ctx: _Context, plan: str) -> dict[str, Any]:
+    if ctx.store.exists(art.plan_key(plan)):
+        return {"plan": plan, "cached": True}
+    mesh_id, request = art.get_request(ctx.store, plan)
+    part = art.get_part(ctx.store, mesh_id)
+    trace_id = art.trace_id(mesh_id, request)
+    views, info, trace, reused = _trace(ctx, part, request, trace_id)
+    progress = _stage_progress(ctx.meta)
+    doc = finish(
+        part, request, views, info, trace, threads=_threads(ctx), progress=progress, reused=reused
+    )
+    art.put_plan(ctx.store, plan, doc)
+    ctx.meta.update(force=True, stage="done")
+    return {"plan": plan, "viewpoints": len(doc.viewpoints), "trace": trace_id}
+
+
+def _trace(
+    ctx: _Context, part: Part, request: PlanRequest, trace_id: str
+) -> tuple[Viewpoints, Any, Trace, bool]:
+    """(views, candidate info, R, reused): from the store, or traced under the trace's lock."""
+    if not ctx.store.exists(art.counts_key(trace_id)):
+        lock = TraceLock(ctx.job.connection, trace_id, ctx.job.id, ctx.settings.plan_timeout_s)
+        with lock.hold(lambda: ctx.store.exists(art.counts_key(trace_id)), ctx.meta.update):
+            if not ctx.store.exists(art.counts_key(trace_id)):
+                views, info = _candidates(ctx, part, request, trace_id)
+                trace = _fan_out(ctx, part, request.sensor, views, trace_id)
+                ctx.store.put(art.counts_key(trace_id), art.trace_bytes(trace))
+                return views, info, trace, False
+    _, views, info = art.get_views(ctx.store, trace_id)
+    trace = art.trace_from_bytes(ctx.store.get(art.counts_key(trace_id)))
+    return views, info, trace, True
+
+
+def _candidates(
+    ctx: _Context, part: Part, request: PlanRequest, trace_id: str
+) -> tuple[Viewpoints, Any]:
+    """Generate (or read back) the candidates of `trace_id`, checked against the limits."""
+    if ctx.store.exists(art.views_key(trace_id)):
+        _, views, info = art.get_views(ctx.store, trace_id)
+        return views, info
+    ctx.meta.update(force=True, stage="candidates", done=0, total=1)
+    views, info = candidates_for(part, request, make_backend(part))
+    check_limits(len(views), request.sensor.n_pixels, ctx.settings.limits())
+    art.put_views(ctx.store, trace_id, request.sensor, views, info)
+    return views, info
+
+
+def _fan_out(ctx: _Context, part: Part, sensor: Sensor, views: Viewpoints, trace_id: str) -> Trace:
+    """R of all views: chunks enqueued for any worker, the ones still queued traced here."""
+    start = time.perf_counter()
+    size = ctx.settings.chunk_views
+    chunks = _Chunks(ctx, part.id, trace_id, len(views), size)
+    backend = make_backend(part)
+    while not chunks.all_done():
+        index = chunks.take_back()
+        if index is None:
+            chunks.watch()
+            time.sleep(POLL_S)
+            continue
+        lo, hi = chunks.range(index)
+        trace = _trace_range(ctx, part, sensor, views, lo, hi, backend, chunks.own_progress)
+        ctx.store.put(art.chunk_key(trace_id, size, index), art.trace_bytes(trace))
+        chunks.taken_done(index)
+    parts = [
+        art.trace_from_bytes(ctx.store.get(art.chunk_key(trace_id, size, i)))
+        for i in range(chunks.n)
+    ]
+    return join_traces(parts, time.perf_counter() - start)
+
+
+def _trace_range(
+    ctx: _Context,
+    part: Part,
+    sensor: Sensor,
+    views: Viewpoints,
+    lo: int,
+    hi: int,
+    backend: RayBackend | None,
+    progress: Any,
+) -> Trace:
+    """R of views [lo, hi)."""
+    subset = views.take(np.arange(lo, hi))
+    return trace_counts(
+        part, sensor, subset, backend=backend, threads=_threads(ctx), progress=progress
+    )
+
+
+def chunk_job(mesh_id: str, trace_id: str, size: int, index: int) -> dict[str, Any]:
+    """Trace chunk `index` (views [index·size, (index+1)·size)) of `trace_id` into the store."""
+    ctx = _Context.current()
+    key = art.chunk_key(trace_id, size, index)
+    if ctx.store.exists(key):
+        return {"chunk": index, "cached": True}
+    part = art.get_part(ctx.store, mesh_id)
+    sensor, views, _ = art.get_views(ctx.store, trace_id)
+    lo, hi = index * size, min((index + 1) * size, len(views))
+    done = [0]
+
+    def progress(n: int) -> None:
+        done[0] += n
+        ctx.meta.update(done=done[0])
+
+    trace = _trace_range(ctx, part, sensor, views, lo, hi, None, progress)
+    ctx.store.put(key, art.trace_bytes(trace))
+    ctx.meta.update(force=True, done=hi - lo)
+    return {"chunk": index, "views": hi - lo, "rays_cast": trace.rays_cast}
+
+
+def _threads(ctx: _Context) -> int | None:
+    return ctx.settings.threads
+
+
+def _stage_progress(meta: _Meta) -> Any:
+    """A vpp_core progress callback writing stage, done and total into the job's meta."""
+
+    def progress(stage: str, done: int, total: int) -> None:
+        meta.update(force=done == 0, stage=stage, done=done, total=total)
+
+    return progress
+
+
+class _Chunks:
+    """The chunk jobs of one fan-out and what the plan job knows of them."""
+
+    def __init__(self, ctx: _Context, mesh_id: str, trace_id: str, n_views: int, size: int) -> None:
+        self.ctx, self.mesh_id, self.trace_id = ctx, mesh_id, trace_id
+        self.n_views, self.size = n_views, size
+        self.n = -(-n_views // size)
+        self.worker = ctx.job.worker_name or "?"
+        self.records: list[dict[str, Any]] = [
+            {"index": i, "views": self.range(i)[1] - self.range(i)[0], "status": "queued"}
+            for i in range(self.n)
+        ]
+        self.own_done = 0
+        self.last_cleanup = time.monotonic()
+        self._enqueue()
+
+    def range(self, index: int) -> tuple[int, int]:
+        return index * self.size, min((index + 1) * self.size, self.n_views)
+
+    def _enqueue(self) -> None:
+        """Enqueue a job for every chunk not in the store yet."""
+        ctx, s = self.ctx, self.ctx.settings
+        stored = [
+            ctx.store.exists(art.chunk_key(self.trace_id, self.size, i)) for i in range(self.n)
+        ]
+        token = f"{int(time.time() * 1000):x}"
+        calls = []
+        for i, rec in enumerate(self.records):
+            if stored[i]:
+                rec.update(status="succeeded", worker="store")
+                continue
+            rec["job"] = f"{ctx.job.id}-{token}-c{i:05d}"
+            calls.append(
+                Queue.prepare_data(
+                    chunk_job,
+                    (self.mesh_id, self.trace_id, self.size, i),
+                    job_id=rec["job"],
+                    timeout=s.chunk_timeout_s,
+                    result_ttl=s.result_ttl_s,
+                    failure_ttl=s.failure_ttl_s,
+                    description=f"trace chunk {i} of plan {ctx.job.id[:12]}",
+                )
+            )
+        if calls:
+            ctx.queue.enqueue_many(calls)
+        self._publish(force=True)
+
+    def take_back(self) -> int | None:
+        """Index of a chunk taken back from the queue to trace here, or None if none is left."""
+        for rec in self.records:
+            if rec["status"] == "queued" and self.ctx.queue.remove(rec["job"]):
+                rec.update(status="running", worker=self.worker, taken_back=True)
+                self.taking = rec
+                self._publish(force=True)
+                return int(rec["index"])
+        return None
+
+    def own_progress(self, n: int) -> None:
+        self.own_done += n
+        self.taking["done"] = self.taking.get("done", 0) + n
+        self._publish()
+
+    def taken_done(self, index: int) -> None:
+        self.records[index].update(status="succeeded", done=self.records[index]["views"])
+        Job(self.records[index]["job"], connection=self.ctx.job.connection).delete(
+            remove_from_queue=False
+        )
+        self.watch()
+
+    def watch(self) -> None:
+        """Refresh the chunks other workers run; raise VppError when one failed."""
+        others = [r for r in self.records if r.get("job") and not r.get("taken_back")]
+        others = [r for r in others if r["status"] not in ("succeeded",)]
+        jobs = Job.fetch_many([r["job"] for r in others], connection=self.ctx.job.connection)
+        for rec, job in zip(others, jobs, strict=True):
+            self._update(rec, job)
+        self._cleanup()
+        self._publish()
+
+    def _update(self, rec: dict[str, Any], job: Job | None) -> None:
+        if job is None:
+            raise VppError(f"ray-tracing chunk {rec['index']} vanished from the queue")
+        status = job.get_status(refresh=False)
+        if status in FAILED:
+            raise VppError(f"ray-tracing chunk {rec['index']} failed: {failure_reason(job)}")
+        rec["worker"] = job.worker_name or rec.get("worker")
+        rec["done"] = int(job.meta.get("done", 0))
+        if status == JobStatus.FINISHED:
+            rec.update(status="succeeded", done=rec["views"])
+        elif status == JobStatus.STARTED:
+            rec["status"] = "running"
+
+    def _cleanup(self) -> None:
+        """Move chunks of dead workers to failed (RQ's own sweep runs only every 10 min)."""
+        if time.monotonic() - self.last_cleanup > CLEANUP_S:
+            self.ctx.queue.started_job_registry.cleanup()
+            self.last_cleanup = time.monotonic()
+
+    def all_done(self) -> bool:
+        return all(r["status"] == "succeeded" for r in self.records)
+
+    def _publish(self, force: bool = False) -> None:
+        done = sum(int(r.get("done", 0)) for r in self.records)
+        self.ctx.meta.update(
+            force=force, stage="trace", done=done, total=self.n_views, chunks=self.records
+        )
+
+
+def failure_reason(job: Job) -> str:
+    """The last line of a failed job's exception, or its status."""
+    result = job.latest_result()
+    text = (result.exc_string or "") if result else ""
+    lines = [line for line in text.strip().splitlines() if line.strip()]
+    return lines[-1] if lines else str(job.get_status(refresh=False))
+
+
+def connect(url: str) -> Redis:
+    """A Redis client for `url` (redis://, rediss:// or unix://)."""
+    return Redis.from_url(url)

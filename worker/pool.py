@@ -1,0 +1,58 @@
+"""Local worker processes: `python -m worker` subprocesses, started and stopped together."""
+
+from __future__ import annotations
+
+import itertools
+import os
+import signal
+import subprocess
+import sys
+from collections.abc import Mapping
+
+_serial = itertools.count()
+STOP_WAIT_S = 10.0
+"""Seconds a worker gets to finish its warm shutdown before it is killed."""
+
+
+def worker_env(workers: int, threads: int | None, extra: Mapping[str, str] = {}) -> dict[str, str]:
+    """Environment of a worker: one BLAS thread, and the cores shared among the workers."""
+    env = {**os.environ, **extra}
+    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        env[var] = "1"
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    env["VPP_THREADS"] = str(threads or max(1, (cores or 1) // workers))
+    return env
+
+
+def start_workers(
+    url: str, count: int, threads: int | None = None, burst: bool = False, prefix: str = "vpp"
+) -> list[subprocess.Popen[bytes]]:
+    """Start `count` worker processes on the queue at `url`."""
+    env = worker_env(count, threads)
+    procs = []
+    for i in range(count):
+        cmd = [
+            sys.executable,
+            "-m",
+            "worker",
+            "--url",
+            url,
+            "--name",
+            f"{prefix}-{os.getpid()}-{i}",
+        ]
+        procs.append(subprocess.Popen(cmd + (["--burst"] if burst else []), env=env))
+    return procs
+
+
+def stop_workers(procs: list[subprocess.Popen[bytes]], wait_s: float = STOP_WAIT_S) -> None:
+    """SIGTERM (RQ's warm shutdown: the job in hand finishes); after `wait_s` a second SIGTERM
+    (cold shutdown: the work horse is killed, the job fails), then SIGKILL."""
+    for sig_wait in ((signal.SIGTERM, wait_s), (signal.SIGTERM, wait_s / 2), (signal.SIGKILL, 5)):
+        alive = [p for p in procs if p.poll() is None]
+        for p in alive:
+            p.send_signal(sig_wait[0])
+        for p in alive:
+            try:
+                p.wait(sig_wait[1])
+            except subprocess.TimeoutExpired:
+                pass

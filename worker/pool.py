@@ -8,6 +8,7 @@ import signal
 import subprocess
 import sys
 from collections.abc import Mapping
+from typing import IO
 
 _serial = itertools.count()
 STOP_WAIT_S = 10.0
@@ -25,9 +26,14 @@ def worker_env(workers: int, threads: int | None, extra: Mapping[str, str] = {})
 
 
 def start_workers(
-    url: str, count: int, threads: int | None = None, burst: bool = False, prefix: str = "vpp"
+    url: str,
+    count: int,
+    threads: int | None = None,
+    burst: bool = False,
+    prefix: str = "vpp",
+    log: IO[bytes] | None = None,
 ) -> list[subprocess.Popen[bytes]]:
-    """Start `count` worker processes on the queue at `url`."""
+    """Start `count` worker processes on the queue at `url`; their output to `log` if given."""
     env = worker_env(count, threads)
     procs = []
     for i in range(count):
@@ -40,7 +46,8 @@ def start_workers(
             "--name",
             f"{prefix}-{os.getpid()}-{i}",
         ]
-        procs.append(subprocess.Popen(cmd + (["--burst"] if burst else []), env=env))
+        args = cmd + (["--burst"] if burst else [])
+        procs.append(subprocess.Popen(args, env=env, stdout=log, stderr=log and subprocess.STDOUT))
     return procs
 
 

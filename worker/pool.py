@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import ctypes
 import itertools
 import os
 import signal
@@ -11,6 +12,8 @@ from collections.abc import Mapping
 from typing import IO
 
 _serial = itertools.count()
+PR_SET_PDEATHSIG = 1
+"""prctl option: the signal a child gets when its parent dies."""
 STOP_WAIT_S = 10.0
 """Seconds a worker gets to finish its warm shutdown before it is killed."""
 
@@ -47,8 +50,23 @@ def start_workers(
             f"{prefix}-{os.getpid()}-{i}",
         ]
         args = cmd + (["--burst"] if burst else [])
-        procs.append(subprocess.Popen(args, env=env, stdout=log, stderr=log and subprocess.STDOUT))
+        procs.append(
+            subprocess.Popen(
+                args,
+                env=env,
+                stdout=log,
+                stderr=log and subprocess.STDOUT,
+                preexec_fn=die_with_parent,
+            )
+        )
     return procs
+
+
+def die_with_parent() -> None:
+    """Linux: SIGTERM this child when its parent dies (a killed `vpp serve` leaves no workers)."""
+    if sys.platform.startswith("linux"):
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
 
 
 def stop_workers(procs: list[subprocess.Popen[bytes]], wait_s: float = STOP_WAIT_S) -> None:

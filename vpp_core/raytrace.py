@@ -66,7 +66,11 @@ class EmbreeBackend:
         return out["primID"], out["tfar"]
 
 
-def make_backend(part: Part, name: str = "embree") -> RayBackend:
+DEFAULT_BACKEND = "embree"
+"""The backend every plan uses today (the only one)."""
+
+
+def make_backend(part: Part, name: str = DEFAULT_BACKEND) -> RayBackend:
     """The ray backend called `name`, built over the part's mesh."""
     if name != "embree":
         raise VppError(f"unknown ray backend {name!r}; available: embree")
@@ -80,6 +84,7 @@ class Trace:
     counts: sp.csc_array  # (M faces, N views) int32 valid rays per face and view
     rays_cast: int  # rays actually traced (pixels whose ray can reach the part)
     pixels: int  # N × pixels per view: the rays a plain per-pixel tracer would cast
+    backend: str  # name of the RayBackend that traced it
     seconds: float = 0.0  # wall time of the tracing
 
 
@@ -90,6 +95,7 @@ def join_traces(parts: Sequence[Trace], seconds: float) -> Trace:
         sp.csc_array(counts),
         sum(t.rays_cast for t in parts),
         sum(t.pixels for t in parts),
+        parts[0].backend,
         seconds,
     )
 
@@ -158,7 +164,8 @@ def trace_counts(
                     progress(1)
     counts = _assemble(columns, part.n_faces)
     pixels = len(views) * sensor.n_pixels
-    return Trace(counts, sum(c.size for c in tasks), pixels, time.perf_counter() - start)
+    rays = sum(c.size for c in tasks)
+    return Trace(counts, rays, pixels, backend.name, time.perf_counter() - start)
 
 
 HULL_CELLS = 32

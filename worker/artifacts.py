@@ -26,11 +26,11 @@ import scipy.sparse as sp
 from vpp_core.document import CandidateInfo, PlanDocument, PlanRequest
 from vpp_core.mesh import Part
 from vpp_core.pose import Viewpoints
-from vpp_core.raytrace import Trace
+from vpp_core.raytrace import DEFAULT_BACKEND, Trace
 from vpp_core.sensor import Sensor
 from worker.store import Store
 
-BACKEND = "embree"
+BACKEND = DEFAULT_BACKEND
 """The ray backend whose R is stored; part of the trace id."""
 
 
@@ -162,6 +162,7 @@ def trace_bytes(trace: Trace) -> bytes:
         shape=np.array(c.shape),
         figures=np.array(figures, np.int64),
         seconds=np.array(trace.seconds),
+        backend=np.array(trace.backend),
     )
 
 
@@ -171,7 +172,7 @@ def trace_from_bytes(data: bytes) -> Trace:
     shape = (int(z["shape"][0]), int(z["shape"][1]))
     counts = sp.csc_array((z["data"], z["indices"], z["indptr"]), shape=shape)
     rays_cast, pixels = (int(x) for x in z["figures"])
-    return Trace(counts, rays_cast, pixels, float(z["seconds"]))
+    return Trace(counts, rays_cast, pixels, str(z["backend"]), float(z["seconds"]))
 
 
 def put_plan(store: Store, plan: str, doc: PlanDocument) -> None:

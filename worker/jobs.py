@@ -108,7 +108,7 @@ def _plan(ctx: _Context, plan: str) -> dict[str, Any]:
         info,
         trace,
         timings=timings,
-        threads=_threads(ctx),
+        threads=ctx.settings.threads,
         progress=progress,
         reused=reused,
     )
@@ -125,10 +125,11 @@ def _trace(
         lock = TraceLock(ctx.job.connection, trace_id, ctx.job.id, ctx.settings.plan_timeout_s)
         with lock.hold(lambda: ctx.store.exists(art.counts_key(trace_id)), ctx.meta.update):
             if not ctx.store.exists(art.counts_key(trace_id)):
+                backend = make_backend(part)
                 start = time.perf_counter()
-                views, info = _candidates(ctx, part, request, trace_id)
+                views, info = _candidates(ctx, part, request, trace_id, backend)
                 timings.candidates = round(time.perf_counter() - start, 4)
-                trace = _fan_out(ctx, part, request.sensor, views, trace_id)
+                trace = _fan_out(ctx, part, request.sensor, views, trace_id, backend)
                 timings.trace = round(trace.seconds, 4)
                 ctx.store.put(art.counts_key(trace_id), art.trace_bytes(trace))
                 return views, info, trace, False
@@ -138,40 +139,52 @@ def _trace(
 
 
 def _candidates(
-    ctx: _Context, part: Part, request: PlanRequest, trace_id: str
+    ctx: _Context, part: Part, request: PlanRequest, trace_id: str, backend: RayBackend
 ) -> tuple[Viewpoints, Any]:
     """Generate (or read back) the candidates of `trace_id`, checked against the limits."""
     if ctx.store.exists(art.views_key(trace_id)):
         _, views, info = art.get_views(ctx.store, trace_id)
         return views, info
     ctx.meta.update(force=True, stage="candidates", done=0, total=1)
-    views, info = candidates_for(part, request, make_backend(part))
+    views, info = candidates_for(part, request, backend)
     check_limits(len(views), request.sensor.n_pixels, ctx.settings.limits())
     art.put_views(ctx.store, trace_id, request.sensor, views, info)
     return views, info
 
 
-def _fan_out(ctx: _Context, part: Part, sensor: Sensor, views: Viewpoints, trace_id: str) -> Trace:
+def _fan_out(
+    ctx: _Context,
+    part: Part,
+    sensor: Sensor,
+    views: Viewpoints,
+    trace_id: str,
+    backend: RayBackend,
+) -> Trace:
     """R of all views: chunks enqueued for any worker, the ones still queued traced here."""
     start = time.perf_counter()
     size = ctx.settings.chunk_views
     chunks = _Chunks(ctx, part.id, trace_id, len(views), size)
-    backend = make_backend(part)
+    own: dict[int, Trace] = {}  # traced here: kept, not read back from the store
     while not chunks.all_done():
         index = chunks.take_back()
         if index is None:
             chunks.watch()
             time.sleep(POLL_S)
             continue
-        lo, hi = chunks.range(index)
-        trace = _trace_range(ctx, part, sensor, views, lo, hi, backend, chunks.own_progress)
-        ctx.store.put(art.chunk_key(trace_id, size, index), art.trace_bytes(trace))
+        lo, hi = chunk_range(index, size, len(views))
+        own[index] = _trace_range(ctx, part, sensor, views, lo, hi, backend, chunks.own_progress)
+        ctx.store.put(art.chunk_key(trace_id, size, index), art.trace_bytes(own[index]))
         chunks.taken_done(index)
     parts = [
-        art.trace_from_bytes(ctx.store.get(art.chunk_key(trace_id, size, i)))
+        own.get(i) or art.trace_from_bytes(ctx.store.get(art.chunk_key(trace_id, size, i)))
         for i in range(chunks.n)
     ]
     return join_traces(parts, time.perf_counter() - start)
+
+
+def chunk_range(index: int, size: int, n_views: int) -> tuple[int, int]:
+    """Views [lo, hi) of chunk `index` when `n_views` are cut into chunks of `size`."""
+    return index * size, min((index + 1) * size, n_views)
 
 
 def _trace_range(
@@ -186,9 +199,8 @@ def _trace_range(
 ) -> Trace:
     """R of views [lo, hi)."""
     subset = views.take(np.arange(lo, hi))
-    return trace_counts(
-        part, sensor, subset, backend=backend, threads=_threads(ctx), progress=progress
-    )
+    threads = ctx.settings.threads
+    return trace_counts(part, sensor, subset, backend=backend, threads=threads, progress=progress)
 
 
 def chunk_job(mesh_id: str, trace_id: str, size: int, index: int) -> dict[str, Any]:
@@ -199,7 +211,7 @@ def chunk_job(mesh_id: str, trace_id: str, size: int, index: int) -> dict[str, A
         return {"chunk": index, "cached": True}
     part = art.get_part(ctx.store, mesh_id)
     sensor, views, _ = art.get_views(ctx.store, trace_id)
-    lo, hi = index * size, min((index + 1) * size, len(views))
+    lo, hi = chunk_range(index, size, len(views))
     done = [0]
 
     def progress(n: int) -> None:
@@ -210,10 +222,6 @@ def chunk_job(mesh_id: str, trace_id: str, size: int, index: int) -> dict[str, A
     ctx.store.put(key, art.trace_bytes(trace))
     ctx.meta.update(force=True, done=hi - lo)
     return {"chunk": index, "views": hi - lo, "rays_cast": trace.rays_cast}
-
-
-def _threads(ctx: _Context) -> int | None:
-    return ctx.settings.threads
 
 
 def _stage_progress(meta: _Meta) -> Any:
@@ -233,16 +241,12 @@ class _Chunks:
         self.n_views, self.size = n_views, size
         self.n = -(-n_views // size)
         self.worker = ctx.job.worker_name or "?"
-        self.records: list[dict[str, Any]] = [
-            {"index": i, "views": self.range(i)[1] - self.range(i)[0], "status": "queued"}
-            for i in range(self.n)
-        ]
-        self.own_done = 0
+        self.records: list[dict[str, Any]] = []
+        for i in range(self.n):
+            lo, hi = chunk_range(i, size, n_views)
+            self.records.append({"index": i, "views": hi - lo, "status": "queued"})
         self.last_cleanup = time.monotonic()
         self._enqueue()
-
-    def range(self, index: int) -> tuple[int, int]:
-        return index * self.size, min((index + 1) * self.size, self.n_views)
 
     def _enqueue(self) -> None:
         """Enqueue a job for every chunk not in the store yet."""
@@ -283,7 +287,6 @@ class _Chunks:
         return None
 
     def own_progress(self, n: int) -> None:
-        self.own_done += n
         self.taking["done"] = self.taking.get("done", 0) + n
         self._publish()
 

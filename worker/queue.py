@@ -40,6 +40,8 @@ STATUS: dict[JobStatus, Status] = {
 }
 SUBMIT_LOCK_MS = 5_000
 """How long one submission may hold the per-plan submit lock."""
+PROGRESS_KEYS = ("stage", "done", "total")
+"""The job meta fields that make up `progress`."""
 CANCEL_WAIT_S = 3.0
 """How long DELETE waits for a running job to stop before it answers."""
 
@@ -92,20 +94,13 @@ def state(conn: Redis, store: Store, plan: str) -> JobState:
     """The job state of `plan`; NotFoundError when neither Redis nor the store knows it."""
     job = _fetch(conn, plan)
     if store.exists(art.plan_key(plan)):
-        return _succeeded(plan, job)
+        return _from_job(plan, "succeeded", {"stage": "done"}, job)
     status = _status(job) if job is not None else None
     if job is None or status is None:
         raise NotFoundError(f"no job {plan!r}")
     meta = job.meta
-    result = JobState(
-        id=plan,
-        status=status,
-        progress={k: meta[k] for k in ("stage", "done", "total") if k in meta} or {"stage": status},
-        chunks=list(meta.get("chunks", [])),
-        created_at=job.created_at,
-        started_at=job.started_at,
-        ended_at=job.ended_at,
-    )
+    progress: dict[str, Any] = {k: meta[k] for k in PROGRESS_KEYS if k in meta} or {"stage": status}
+    result = _from_job(plan, status, progress, job)
     if status == "failed":
         result.error = meta.get("error") or _worker_error(job)
     elif status == "succeeded":  # finished, yet the document is gone from the store
@@ -151,14 +146,14 @@ def _status(job: Job) -> Status | None:
         return None
 
 
-def _succeeded(plan: str, job: Job | None) -> JobState:
-    done = {"stage": "done"}
+def _from_job(plan: str, status: Status, progress: dict[str, Any], job: Job | None) -> JobState:
+    """The state of `plan` with the chunk records and times of its RQ job, if Redis has it."""
     if job is None:
-        return JobState(id=plan, status="succeeded", progress=done)
+        return JobState(id=plan, status=status, progress=progress)
     return JobState(
         id=plan,
-        status="succeeded",
-        progress=done,
+        status=status,
+        progress=progress,
         chunks=list(job.meta.get("chunks", [])),
         created_at=job.created_at,
         started_at=job.started_at,

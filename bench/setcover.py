@@ -1,8 +1,20 @@
-"""Benchmark the set-cover solvers on OR-Library SCP files; one JSON line per instance and solver.
+"""Benchmark the set-cover solvers; one JSON line per instance and solver (stdout).
 
-    python bench/setcover.py FILE... [--time-limit S] [--solver milp|greedy|both] [--threads T]
+    python bench/setcover.py FILE... [--solver milp|greedy|both] [--time-limit S] [--threads T]
+    python bench/setcover.py --mesh [MESH...] [--candidates 500 2000]
+                             [--formulation density visibility] [...]
+    python bench/setcover.py --synthetic ROWSxCOLS [--binary] [--seed K] [--lp] [...]
 
-`best_known` comes from `optima.csv` next to each file (null when absent).
+FILE: OR-Library SCP files; `best_known` comes from `optima.csv` beside them (null when absent).
+--mesh: viewpoint instances built from real meshes (every mesh of ../shared/meshes without
+MESH; units from its MANIFEST.csv) with the paper's camera and the default target, one per
+candidate count and formulation; the trace is made once per mesh and count.
+--synthetic: the viewpoint-like window instance of `vpp_core.samples.window_cover`; with
+--lp the LP relaxation is also solved on its own (HiGHS interior point), so that the
+solver's bound can be compared with it (`lp` in the line).
+
+Fields: instance, solver, rows, cols (after reductions), objective, bound, gap, status,
+time_s, time_to_best_s, best_known, input_rows, input_cols, build_s, peak_rss_mib.
 """
 
 from __future__ import annotations
@@ -10,14 +22,34 @@ from __future__ import annotations
 import argparse
 import csv
 import json
+import resource
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+import numpy as np
+import scipy.sparse as sp
 
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "bench"))
+
+from plan import default_meshes, manifest_units  # noqa: E402
+
+from vpp_core.density import cover_model  # noqa: E402
+from vpp_core.document import CandidateGenerator, PlanRequest  # noqa: E402
+from vpp_core.lpbound import lp_bound  # noqa: E402
+from vpp_core.mesh import load_mesh  # noqa: E402
 from vpp_core.orlib import parse_orlib  # noqa: E402
+from vpp_core.plan import candidates_for  # noqa: E402
+from vpp_core.raytrace import make_backend, trace_counts  # noqa: E402
+from vpp_core.samples import window_cover  # noqa: E402
+from vpp_core.sensor import make_sensor  # noqa: E402
 from vpp_core.setcover import solve_cover  # noqa: E402
+
+Instance = tuple[str, Any, np.ndarray | None, float | None, float]  # name, A, costs, known, s
 
 
 def best_known(path: Path) -> float | None:
@@ -32,42 +64,115 @@ def best_known(path: Path) -> float | None:
     return None
 
 
-def bench_file(path: Path, solvers: list[str], time_limit: float, threads: int | None) -> None:
-    """Parse one OR-Library file and print one JSON line per solver."""
+def orlib_instances(files: list[Path]) -> Iterator[Instance]:
+    """OR-Library files as instances."""
+    for path in files:
+        t0 = time.perf_counter()
+        A, costs = parse_orlib(path.read_text())
+        yield path.stem, A, costs, best_known(path), time.perf_counter() - t0
+
+
+def mesh_instances(
+    meshes: list[Path], counts: list[int], formulations: list[str]
+) -> Iterator[Instance]:
+    """Viewpoint instances: paper camera, default target, each count and formulation."""
+    units = {p.name: manifest_units(p.parent).get(p.name, "mm") for p in meshes}
+    for path in meshes:
+        part = load_mesh(path.read_bytes(), path.suffix.lstrip("."), units[path.name])
+        backend = make_backend(part)
+        for count in counts:
+            t0 = time.perf_counter()
+            request = PlanRequest(sensor=make_sensor(None), candidates=CandidateGenerator(count=count))
+            views, _ = candidates_for(part, request, backend)
+            trace = trace_counts(part, request.sensor, views, backend=backend)
+            trace_s = time.perf_counter() - t0
+            for form in formulations:
+                t1 = time.perf_counter()
+                model = cover_model(
+                    trace.counts, part.areas, part.counted, request.target.resolution_mm, form
+                )
+                build_s = trace_s + time.perf_counter() - t1
+                yield f"{path.stem}/{count}/{form}", model.matrix, None, None, build_s
+
+
+def synthetic_instance(shape: str, binary: bool, seed: int) -> Iterator[Instance]:
+    """The window instance ROWSxCOLS (real coefficients unless binary)."""
+    rows, cols = (int(v) for v in shape.lower().split("x"))
     t0 = time.perf_counter()
-    A, costs = parse_orlib(path.read_text())
-    parse_s = time.perf_counter() - t0
-    known = best_known(path)
-    for solver in solvers:
-        res = solve_cover(A, costs, method=solver, time_limit=time_limit, threads=threads)
-        line = {
-            "instance": path.stem,
-            "solver": res.solver,
-            "rows": res.rows,
-            "cols": res.cols,
-            "objective": res.objective,
-            "bound": res.bound,
-            "gap": None if res.gap is None else round(res.gap, 6),
-            "status": res.status,
-            "time_s": round(res.time_s, 3),
-            "best_known": known,
-            "input_rows": A.shape[0],
-            "parse_s": round(parse_s, 3),
-        }
-        print(json.dumps(line), flush=True)
+    A = window_cover(rows, cols, values=None if binary else (0.26, 0.55), seed=seed)
+    name = f"window-{rows}x{cols}-{'binary' if binary else 'real'}-s{seed}"
+    yield name, A, None, None, time.perf_counter() - t0
+
+
+def peak_rss_mib() -> float:
+    """Peak resident memory of this process so far (MiB)."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def run(inst: Instance, solver: str, args: argparse.Namespace) -> dict[str, Any]:
+    """Solve one instance with one solver; the JSON line as a dict."""
+    name, A, costs, known, build_s = inst
+    res = solve_cover(A, costs, method=solver, time_limit=args.time_limit, threads=args.threads)
+    return {
+        "instance": name,
+        "solver": res.solver,
+        "rows": res.rows,
+        "cols": res.cols,
+        "objective": res.objective,
+        "bound": res.bound,
+        "gap": None if res.gap is None else round(res.gap, 6),
+        "status": res.status,
+        "time_s": round(res.time_s, 3),
+        "time_to_best_s": None if res.time_to_best_s is None else round(res.time_to_best_s, 3),
+        "best_known": known,
+        "input_rows": A.shape[0],
+        "input_cols": A.shape[1],
+        "build_s": round(build_s, 3),
+        "peak_rss_mib": round(peak_rss_mib(), 1),
+    }
+
+
+def lp_line(inst: Instance, args: argparse.Namespace) -> dict[str, Any]:
+    """The LP relaxation solved on its own, without reductions (time limit 10× the solve's)."""
+    name, A, costs, _, _ = inst
+    csr = sp.csr_array(A, dtype=np.float64)
+    c = np.ones(csr.shape[1]) if costs is None else np.asarray(costs, dtype=np.float64)
+    lp = lp_bound(csr, c, 10 * args.time_limit, args.threads)
+    return {"instance": name, "solver": "lp", "lp": lp.bound, "status": lp.status,
+            "time_s": round(lp.time_s, 3)}  # fmt: skip
 
 
 def main(argv: list[str] | None = None) -> int:
     """Command-line entry point."""
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
-    ap.add_argument("files", nargs="+", type=Path, metavar="FILE")
+    ap.add_argument("files", nargs="*", type=Path, metavar="FILE")
+    ap.add_argument("--mesh", action="store_true", help="FILEs are meshes (none: all shared)")
+    ap.add_argument("--candidates", type=int, nargs="+", default=[500, 2000])
+    ap.add_argument("--formulation", nargs="+", default=["density", "visibility"])
+    ap.add_argument("--synthetic", metavar="ROWSxCOLS", help="the window instance, e.g. 200000x2000")
+    ap.add_argument("--binary", action="store_true", help="synthetic with 0/1 coefficients")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--lp", action="store_true", help="also solve the LP relaxation on its own")
     ap.add_argument("--time-limit", type=float, default=60.0, help="seconds per solve")
     ap.add_argument("--solver", choices=["milp", "greedy", "both"], default="both")
     ap.add_argument("--threads", type=int, default=None, help="HiGHS threads (default: HiGHS)")
     args = ap.parse_args(argv)
     solvers = ["greedy", "milp"] if args.solver == "both" else [args.solver]
-    for path in args.files:
-        bench_file(path, solvers, args.time_limit, args.threads)
+    if args.synthetic:
+        instances = synthetic_instance(args.synthetic, args.binary, args.seed)
+    elif args.mesh:
+        meshes = args.files or default_meshes()
+        if not meshes:
+            print("no meshes: ../shared/meshes is absent", file=sys.stderr)
+            return 0
+        instances = mesh_instances(meshes, args.candidates, args.formulation)
+    else:
+        instances = orlib_instances(args.files)
+    for inst in instances:
+        for solver in solvers:
+            print(json.dumps(run(inst, solver, args)), flush=True)
+        if args.lp:
+            print(json.dumps(lp_line(inst, args)), flush=True)
     return 0
 
 

@@ -15,6 +15,7 @@ from hypothesis import strategies as st
 
 from vpp_core import setcover
 from vpp_core.errors import SolverError
+from vpp_core.lpbound import LpBound
 from vpp_core.orlib import parse_orlib
 from vpp_core.reduce import unique_rows
 from vpp_core.setcover import (
@@ -314,6 +315,16 @@ def fake_highs(monkeypatch: pytest.MonkeyPatch, sel: list[int], status: str, bou
         np.array(sel, dtype=np.int64), getattr(highspy.HighsModelStatus, status), bound
     )
     monkeypatch.setattr(setcover, "_run_highs", lambda *args, **kwargs: outcome)
+    everything = lambda A, *args: np.ones(A.shape[1], dtype=bool)  # noqa: E731
+    monkeypatch.setattr(setcover, "_core", everything)  # no core run, no column fixed
+    monkeypatch.setattr(setcover, "columns_worth_keeping", lambda lp, *a: everything(TINY))
+    monkeypatch.setattr(setcover, "lp_bound", weak_lp)
+
+
+def weak_lp(A: sp.csr_array, costs: np.ndarray, *args: object) -> LpBound:
+    """An LP bound of zero (multipliers all zero), so only the faked HiGHS can close the gap."""
+    z = np.zeros(A.shape[0])
+    return LpBound(0.0, z, costs.copy(), np.zeros(A.shape[1]), "fake", 0.0)
 
 
 def test_infeasible_highs_solution_is_repaired_and_not_optimal(
@@ -350,7 +361,7 @@ def test_real_costs_do_not_round_the_bound(monkeypatch: pytest.MonkeyPatch) -> N
 
 
 def test_worse_highs_incumbent_loses_to_greedy(monkeypatch: pytest.MonkeyPatch) -> None:
-    fake_highs(monkeypatch, [2], "kTimeLimit", 1.5)
+    fake_highs(monkeypatch, [2], "kTimeLimit", 0.9)
     res = solve_cover(TINY, TINY_COSTS)
     assert (res.selected.tolist(), res.status, res.objective) == ([0, 1], "time_limit", 2.0)
 

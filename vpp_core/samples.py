@@ -1,8 +1,9 @@
-"""A sample part every installation can make: a flanged bushing (mm), for demos and tests."""
+"""Sample inputs every installation can make: a flanged bushing (mm) and a viewpoint-like cover."""
 
 from __future__ import annotations
 
 import numpy as np
+import scipy.sparse as sp
 import trimesh
 
 
@@ -21,3 +22,26 @@ def sample_stl(sections: int = 96) -> bytes:
     data = flanged_bushing(sections).export(file_type="stl")
     assert isinstance(data, bytes)
     return data
+
+
+def window_cover(
+    rows: int = 200_000,
+    cols: int = 2_000,
+    *,
+    width: float = 0.02,
+    drop: float = 0.05,
+    values: tuple[float, float] | None = (0.26, 0.55),
+    seed: int = 0,
+) -> sp.csr_array:
+    """(rows, cols) viewpoint-like cover matrix: each column a circular window of width·rows
+    rows around a random centre, a `drop` fraction of its entries removed, coefficients uniform
+    in `values` (all ones when None)."""
+    rng = np.random.default_rng(seed)
+    w = max(1, round(width * rows))
+    centres = rng.integers(0, rows, size=cols)
+    r = (centres[:, None] - w // 2 + np.arange(w)[None, :]) % rows  # (cols, w)
+    c = np.broadcast_to(np.arange(cols)[:, None], r.shape)
+    keep = rng.random(r.shape) >= drop
+    r, c = r[keep], c[keep]
+    v = np.ones(r.size) if values is None else rng.uniform(*values, size=r.size)
+    return sp.csr_array(sp.coo_array((v, (r, c)), shape=(rows, cols)))

@@ -11,28 +11,53 @@ everywhere: the feasibility check, the greedy, `remove_redundant` and `is_cover`
 
 from __future__ import annotations
 
-import heapq
 import math
 import time
 from dataclasses import dataclass, field
-from typing import Any, TypeAlias
 
 import highspy
 import numpy as np
 import scipy.sparse as sp
 
-from vpp_core.errors import SolverError
+from vpp_core.cover import (
+    COVER_TOL,
+    SparseLike,
+    as_costs,
+    as_csr,
+    check_coverable,
+    indicator,
+    is_cover,
+)
+from vpp_core.greedy import complete_cover, greedy_cover, prune_cover, remove_redundant
+from vpp_core.localsearch import improve
+from vpp_core.lpbound import LpBound, columns_worth_keeping, highs_model, lp_bound
 from vpp_core.reduce import reduce_cover
 
-COVER_TOL = 1e-9
-"""A row i is covered by y when sum_j A_ij y_j >= 1 - COVER_TOL."""
+__all__ = [
+    "COVER_TOL",
+    "CoverResult",
+    "greedy_cover",
+    "is_cover",
+    "remove_redundant",
+    "solve_cover",
+]
 
 _HIGHS_FEAS_TOL = 1e-9
 _HIGHS_START_FEASIBLE = 2  # HiGHS kSolutionStatusFeasible
 _INT_BOUND_EPS = 1e-6  # ceil(bound - eps) for integer costs
 _REAL_GAP_TOL = 1e-6  # non-integer costs: gap closed when obj - bound <= 1e-6 max(1, obj)
-
-SparseLike: TypeAlias = sp.csr_array | sp.csr_matrix
+LP_SHARE = 0.4
+"""At most this share of the time limit goes to the LP bound."""
+QUICK_SHARE = 0.1
+"""At most this share of the time left after the LP goes to a first exact HiGHS run."""
+SEARCH_SHARE = 0.3
+"""At most this share of the time left after the LP goes to local search."""
+CORE_SHARE = 0.25
+"""At most this share of the time left then goes to HiGHS on the core (least reduced costs)."""
+CORE_PER_ROW = 5
+"""Columns of least reduced cost per row that make up the core."""
+LOCAL_SEARCH_NNZ = 2_000_000
+"""Reduced models with more nonzeros get local search instead of HiGHS branch-and-bound."""
 
 
 @dataclass(frozen=True)
@@ -49,153 +74,7 @@ class CoverResult:
     rows: int  # rows of the model handed to the solver (after reductions)
     cols: int
     presolve: dict[str, int] = field(default_factory=dict)  # sizes before/after reductions
-
-
-# ---------------------------------------------------------------------------- input checks
-
-
-def _as_csr(A: Any) -> sp.csr_array:
-    """(M, N) canonical float64 CSR copy of A: sorted indices, no duplicates, no stored zeros."""
-    if not (sp.issparse(A) or isinstance(A, np.ndarray)):
-        raise SolverError(f"coverage matrix must be a scipy sparse array, got {type(A).__name__}")
-    if len(A.shape) != 2:
-        raise SolverError(f"coverage matrix must be 2-D, got shape {A.shape}")
-    csr = sp.csr_array(A, dtype=np.float64, copy=True)
-    csr.sum_duplicates()
-    csr.eliminate_zeros()
-    csr.sort_indices()
-    data = csr.data
-    if not np.all(np.isfinite(data)):
-        raise SolverError("coverage matrix holds NaN or infinite values")
-    if data.size and (data.min() < 0.0 or data.max() > 1.0 + COVER_TOL):
-        raise SolverError(
-            f"coverage coefficients must lie in (0, 1], got [{data.min():g}, {data.max():g}]"
-        )
-    np.minimum(data, 1.0, out=data)
-    csr.indices = csr.indices.astype(np.int64, copy=False)
-    csr.indptr = csr.indptr.astype(np.int64, copy=False)
-    return csr
-
-
-def _as_costs(costs: np.ndarray | None, n: int) -> np.ndarray:
-    """(N,) float64 costs, all finite and > 0; all ones when None."""
-    if costs is None:
-        return np.ones(n, dtype=np.float64)
-    c = np.asarray(costs, dtype=np.float64).reshape(-1)
-    if c.shape != (n,):
-        raise SolverError(f"costs must have shape ({n},), got {np.shape(costs)}")
-    if not np.all(np.isfinite(c)) or (n and c.min() <= 0.0):
-        raise SolverError("costs must be finite and > 0")
-    return c
-
-
-def _check_coverable(A: sp.csr_array) -> None:
-    """Raise SolverError when some row of A (M, N) is not covered even by all columns."""
-    short = np.flatnonzero(np.asarray(A.sum(axis=1)).reshape(-1) < 1.0 - COVER_TOL)
-    if short.size:
-        raise SolverError(
-            f"{short.size} of {A.shape[0]} rows cannot be covered even with all "
-            f"{A.shape[1]} columns (first: row {int(short[0])})"
-        )
-
-
-def _indicator(n: int, selected: np.ndarray) -> np.ndarray:
-    """(N,) float64 0/1 vector of the column indices `selected` (K,)."""
-    idx = np.asarray(selected, dtype=np.int64).reshape(-1)
-    if idx.size and (idx.min() < 0 or idx.max() >= n):
-        raise ValueError(f"selected column index out of range [0, {n})")
-    y = np.zeros(n, dtype=np.float64)
-    y[idx] = 1.0
-    return y
-
-
-def _coverage(A: sp.csr_array, selected: np.ndarray) -> np.ndarray:
-    """(M,) row coverage sum_j A_ij y_j of the selected columns (K,)."""
-    return np.asarray(A @ _indicator(A.shape[1], selected), dtype=np.float64).reshape(-1)
-
-
-def is_cover(A: SparseLike, selected: np.ndarray, tol: float = COVER_TOL) -> bool:
-    """True when every row i of A (M, N) has sum_j A_ij y_j >= 1 - tol for y = selected (K,)."""
-    csr = sp.csr_array(A, dtype=np.float64)
-    return bool(np.all(_coverage(csr, selected) >= 1.0 - tol))
-
-
-# ---------------------------------------------------------------------------- greedy
-
-
-def _lazy_greedy(csc: sp.csc_array, costs: np.ndarray, r: np.ndarray) -> list[int]:
-    """Columns of csc (M, N) picked greedily until residual demand r (M,) is 0 (r is updated)."""
-    ip, ix, dv = csc.indptr, csc.indices, csc.data
-    r[r <= COVER_TOL] = 0.0
-
-    def gain(j: int) -> float:
-        s = slice(ip[j], ip[j + 1])
-        return float(np.minimum(r[ix[s]], dv[s]).sum())
-
-    heap = [(-g / costs[j], j) for j in range(csc.shape[1]) if (g := gain(j)) > 0.0]
-    heapq.heapify(heap)
-    uncovered, picked = int(np.count_nonzero(r)), []
-    while uncovered and heap:
-        _, j = heapq.heappop(heap)
-        g = gain(j)  # scores only decrease: the popped key is an upper bound
-        if g <= 0.0:
-            continue
-        key = (-g / costs[j], j)
-        if heap and key > heap[0]:
-            heapq.heappush(heap, key)
-            continue
-        rows = ix[ip[j] : ip[j + 1]]
-        new = r[rows] - dv[ip[j] : ip[j + 1]]
-        new[new <= COVER_TOL] = 0.0
-        uncovered -= int(np.count_nonzero((r[rows] > 0.0) & (new == 0.0)))
-        r[rows] = new
-        picked.append(j)
-    if uncovered:
-        raise SolverError(f"{uncovered} rows cannot be covered even with all columns")
-    return picked
-
-
-def _complete(A: sp.csr_array, costs: np.ndarray, selected: np.ndarray) -> np.ndarray:
-    """(K',) sorted cover of A (M, N): `selected` (K,) + greedy columns, redundancy removed."""
-    r = np.maximum(0.0, 1.0 - _coverage(A, selected))
-    extra = _lazy_greedy(sp.csc_array(A), costs, r)
-    union = np.union1d(np.asarray(selected, dtype=np.int64), np.asarray(extra, dtype=np.int64))
-    return _remove_redundant(A, union, costs)
-
-
-def greedy_cover(A: SparseLike, costs: np.ndarray | None = None) -> np.ndarray:
-    """(K,) int64 sorted cover of A (M, N): cost-effectiveness greedy + redundancy removal."""
-    csr = _as_csr(A)
-    c = _as_costs(costs, csr.shape[1])
-    _check_coverable(csr)
-    return _complete(csr, c, np.zeros(0, dtype=np.int64))
-
-
-def _remove_redundant(A: sp.csr_array, sel: np.ndarray, costs: np.ndarray) -> np.ndarray:
-    """(K',) sorted subset of cover `sel` (K,) of A (M, N) with no column droppable on its own."""
-    sel = np.unique(np.asarray(sel, dtype=np.int64))
-    cov = _coverage(A, sel)
-    if np.any(cov < 1.0 - COVER_TOL):
-        raise ValueError("remove_redundant needs a cover; some rows are not covered")
-    csc = sp.csc_array(A[:, sel]) if sel.size else sp.csc_array(A.shape, dtype=np.float64)
-    useful = np.asarray(csc.sum(axis=0)).reshape(-1)
-    keep = np.ones(sel.size, dtype=bool)
-    for k in np.lexsort((-sel, useful, -costs[sel])):  # expensive, least useful, highest j first
-        s = slice(csc.indptr[k], csc.indptr[k + 1])
-        rows, vals = csc.indices[s], csc.data[s]
-        left = cov[rows] - vals
-        if np.all(left >= 1.0 - COVER_TOL):
-            cov[rows] = left
-            keep[k] = False
-    return sel[keep]
-
-
-def remove_redundant(
-    A: SparseLike, selected: np.ndarray, costs: np.ndarray | None = None
-) -> np.ndarray:
-    """(K',) int64 sorted subset of the cover `selected` (K,) of A (M, N), no redundant column."""
-    csr = _as_csr(A)
-    return _remove_redundant(csr, selected, _as_costs(costs, csr.shape[1]))
+    time_to_best_s: float | None = None  # seconds from the start until the cover was found
 
 
 # ---------------------------------------------------------------------------- reductions
@@ -209,23 +88,6 @@ def _trivial_bound(A: sp.csr_array, costs: np.ndarray) -> float:
 
 
 # ---------------------------------------------------------------------------- HiGHS
-
-
-def _highs_lp(A: sp.csr_array, costs: np.ndarray) -> highspy.HighsLp:
-    """HiGHS model of min c·y, A y >= 1, y in {0, 1} for A (M, N), costs (N,)."""
-    csc = sp.csc_array(A)
-    m, n = A.shape
-    lp = highspy.HighsLp()
-    lp.num_col_, lp.num_row_ = n, m
-    lp.col_cost_ = costs
-    lp.col_lower_, lp.col_upper_ = np.zeros(n), np.ones(n)
-    lp.row_lower_, lp.row_upper_ = np.ones(m), np.full(m, highspy.kHighsInf)
-    lp.a_matrix_.format_ = highspy.MatrixFormat.kColwise
-    lp.a_matrix_.start_ = csc.indptr.astype(np.int32)
-    lp.a_matrix_.index_ = csc.indices.astype(np.int32)
-    lp.a_matrix_.value_ = csc.data
-    lp.integrality_ = [highspy.HighsVarType.kInteger] * n
-    return lp
 
 
 def _highs(time_limit: float, mip_rel_gap: float, threads: int | None) -> highspy.Highs:
@@ -266,9 +128,9 @@ def _run_highs(
 ) -> _MipOutcome:
     """Solve the cover of A (M, N) with HiGHS, warm-started from the cover `start` (K,)."""
     h = _highs(time_limit, mip_rel_gap, threads)
-    h.passModel(_highs_lp(A, costs))
+    h.passModel(highs_model(A, costs, integer=True))
     warm = highspy.HighsSolution()
-    warm.col_value = _indicator(A.shape[1], start).tolist()
+    warm.col_value = indicator(A.shape[1], start).tolist()
     warm.value_valid = True
     h.setSolution(warm)
     if h.run() == highspy.HighsStatus.kError and threads is not None:
@@ -287,38 +149,111 @@ def _run_highs(
 # ---------------------------------------------------------------------------- driver
 
 
-def _best_selection(
-    A: sp.csr_array, costs: np.ndarray, greedy: np.ndarray, mip: np.ndarray | None
-) -> tuple[np.ndarray, bool]:
-    """(K,) cheaper of the greedy cover and HiGHS's selection (verified, repaired if needed)."""
+def _verified(
+    A: sp.csr_array, costs: np.ndarray, mip: np.ndarray | None
+) -> tuple[np.ndarray | None, bool]:
+    """(HiGHS's selection as a pruned cover of A (M, N), whether it had to be repaired)."""
     if mip is None:
-        return greedy, False
-    repaired = not is_cover(A, mip)
-    mip = _complete(A, costs, mip) if repaired else _remove_redundant(A, mip, costs)
-    if costs[greedy].sum() < costs[mip].sum():
-        return greedy, False
-    return mip, repaired
+        return None, False
+    if is_cover(A, mip):
+        return prune_cover(A, mip, costs), False
+    return complete_cover(A, costs, mip), True
 
 
-def _proven_bound(
-    A: sp.csr_array, costs: np.ndarray, dual: float, objective: float
-) -> tuple[float, bool]:
-    """Best valid lower bound (HiGHS's dual or the trivial one) and whether it closes the gap."""
-    bound = max(dual, _trivial_bound(A, costs))
-    if np.all(costs == np.floor(costs)):  # integer costs: the optimum is an integer
+def _closes(bound: float, objective: float, integral: bool) -> tuple[float, bool]:
+    """(bound rounded up for integer costs and capped at objective, whether it closes the gap)."""
+    if integral:  # integer costs: the optimum is an integer
         bound = min(float(math.ceil(bound - _INT_BOUND_EPS)), objective)
         return bound, bound >= objective - 1e-9
     bound = min(bound, objective)
     return bound, objective - bound <= _REAL_GAP_TOL * max(1.0, objective)
 
 
-def _status(model_status: highspy.HighsModelStatus, closed: bool, repaired: bool) -> str:
-    """Truthful status: "optimal" only for a HiGHS optimum with the gap closed, unrepaired."""
-    if model_status == highspy.HighsModelStatus.kOptimal:
-        return "heuristic" if repaired else ("optimal" if closed else "gap_limit")
-    if model_status == highspy.HighsModelStatus.kTimeLimit:
-        return "time_limit"
-    return "heuristic"
+def _core(A: sp.csr_array, reduced: np.ndarray, per_row: int) -> np.ndarray:
+    """(N,) bool: the `per_row` columns of least reduced cost (N,) of every row of A (M, N)."""
+    rows = np.repeat(np.arange(A.shape[0]), np.diff(A.indptr))
+    order = np.lexsort((reduced[A.indices], rows))
+    rank = np.arange(order.size) - A.indptr[rows[order]]
+    core = np.zeros(A.shape[1], dtype=bool)
+    core[A.indices[order[rank < per_row]]] = True
+    return core
+
+
+@dataclass
+class _Search:
+    """The reduced model being solved and the best cover and bound found so far."""
+
+    A: sp.csr_array  # (m, n)
+    costs: np.ndarray  # (n,)
+    best: np.ndarray  # (K,) cover of A
+    bound: float
+    integral: bool
+    deadline: float
+    threads: int | None
+    mip_status: highspy.HighsModelStatus | None = None
+    repaired: bool = False
+    found_at: float = field(default_factory=time.perf_counter)
+
+    @property
+    def objective(self) -> float:
+        return float(self.costs[self.best].sum())
+
+    def left(self, share: float = 1.0) -> float:
+        return share * (self.deadline - time.perf_counter())
+
+    def closed(self) -> bool:
+        return _closes(self.bound, self.objective, self.integral)[1]
+
+    def offer(self, cover: np.ndarray | None) -> None:
+        if cover is not None and self.costs[cover].sum() < self.objective:
+            self.best, self.found_at = cover, time.perf_counter()
+
+    def mip(self, keep: np.ndarray, time_limit: float, gap: float) -> _MipOutcome:
+        """HiGHS on the columns `keep` (n,) bool (which must hold the incumbent)."""
+        cols = np.flatnonzero(keep)
+        start = np.flatnonzero(np.isin(cols, self.best))
+        out = _run_highs(self.A[:, cols], self.costs[cols], start, time_limit, gap, self.threads)
+        cover, repaired = _verified(
+            self.A, self.costs, None if out.selected is None else cols[out.selected]
+        )
+        self.offer(cover)
+        self.repaired |= repaired  # HiGHS's answer broke a row: its bound is not trusted
+        return out
+
+
+def _search(S: _Search, mip_rel_gap: float) -> None:
+    """LP bound, a quick exact try, local search, HiGHS on a core, then HiGHS on what can win."""
+    lp = lp_bound(S.A, S.costs, S.left(LP_SHARE), S.threads)
+    S.bound = max(S.bound, lp.bound)
+    if S.closed():
+        return
+    target = math.ceil(S.bound - _INT_BOUND_EPS) if S.integral else S.bound
+    if S.A.nnz > LOCAL_SEARCH_NNZ:  # HiGHS cannot branch on this: search locally instead
+        S.offer(improve(S.A, S.costs, S.best, S.deadline, target=target))
+        return
+    _exact(S, lp, S.left(QUICK_SHARE), mip_rel_gap)
+    if S.closed() or S.mip_status == highspy.HighsModelStatus.kOptimal:
+        return
+    end = time.perf_counter() + S.left(SEARCH_SHARE)
+    S.offer(improve(S.A, S.costs, S.best, end, target=target))
+    if S.closed():
+        return
+    core = _core(S.A, lp.reduced, CORE_PER_ROW)
+    core[S.best] = True
+    if core.sum() < S.A.shape[1]:
+        S.mip(core, S.left(CORE_SHARE), mip_rel_gap)
+    if not S.closed() and S.left() > 0:
+        _exact(S, lp, S.left(), mip_rel_gap)
+
+
+def _exact(S: _Search, lp: LpBound, time_limit: float, mip_rel_gap: float) -> None:
+    """HiGHS on the columns that can still beat the incumbent; its bound then holds for A."""
+    keep = columns_worth_keeping(lp, S.objective, 1.0 if S.integral else 0.0)
+    keep[S.best] = True
+    out = S.mip(keep, time_limit, mip_rel_gap)
+    S.mip_status = out.model_status
+    if not S.repaired:  # the kept columns hold every cheaper cover
+        S.bound = max(S.bound, min(out.dual_bound, S.objective))
 
 
 def _solve_milp(
@@ -329,33 +264,47 @@ def _solve_milp(
     mip_rel_gap: float,
     threads: int | None,
 ) -> CoverResult:
-    """Exact solve of the cover of A (M, N): reductions, greedy start, HiGHS on what is left."""
+    """Exact solve of the cover of A (M, N): reductions, greedy, LP bound, HiGHS on what is left."""
     red = reduce_cover(A, costs)
     R, c = red.matrix, costs[red.columns]
-    fixed_cost = float(costs[red.fixed].sum())
-    greedy = _complete(R, c, np.zeros(0, dtype=np.int64)) if R.shape[0] else red.columns[:0]
-    left = time_limit - (time.perf_counter() - t0)
-    if R.shape[0] == 0:
-        out = _MipOutcome(greedy, highspy.HighsModelStatus.kOptimal, 0.0)
-    elif left > 0.0:
-        out = _run_highs(R, c, greedy, left, mip_rel_gap, threads)
-    else:
-        out = _MipOutcome(None, highspy.HighsModelStatus.kTimeLimit, -math.inf)
-    chosen, repaired = (
-        _best_selection(R, c, greedy, out.selected) if R.shape[0] else (greedy, False)
-    )
-    selected = np.union1d(red.fixed, red.columns[chosen]).astype(np.int64)
+    integral = bool(np.all(costs == np.floor(costs)))
+    greedy = complete_cover(R, c, np.zeros(0, dtype=np.int64)) if R.shape[0] else red.columns[:0]
+    S = _Search(R, c, greedy, _trivial_bound(R, c), integral, t0 + time_limit, threads)
+    if R.shape[0] and not S.closed() and S.left() > 0:
+        _search(S, mip_rel_gap)
+    selected = np.union1d(red.fixed, red.columns[S.best]).astype(np.int64)
     if not is_cover(A, selected):  # cannot happen if the reductions are exact: stay safe
-        selected, repaired = _complete(A, costs, selected), True
+        selected, S.repaired = complete_cover(A, costs, selected), True
     objective = float(costs[selected].sum())
-    bound, closed = _proven_bound(R, c, out.dual_bound, objective - fixed_cost)
-    bound += fixed_cost
-    status = _status(out.model_status, closed, repaired)
-    gap = 0.0 if status == "optimal" else (objective - bound) / objective
+    fixed_cost = float(costs[red.fixed].sum())
+    bound, closed = _closes(S.bound, objective - fixed_cost, integral)
+    status = _status(S, closed)
+    gap = 0.0 if status == "optimal" else (objective - bound - fixed_cost) / objective
     elapsed = time.perf_counter() - t0
     return CoverResult(
-        selected, "milp", status, objective, bound, gap, elapsed, R.shape[0], R.shape[1], red.sizes
+        selected,
+        "milp",
+        status,
+        objective,
+        bound + fixed_cost,
+        gap,
+        elapsed,
+        R.shape[0],
+        R.shape[1],
+        red.sizes,
+        S.found_at - t0,
     )
+
+
+def _status(S: _Search, closed: bool) -> str:
+    """Truthful status: "optimal" only when a proven bound meets the cover's cost."""
+    if closed:
+        return "optimal"
+    if S.left() <= 0 or S.mip_status == highspy.HighsModelStatus.kTimeLimit:
+        return "time_limit"
+    if S.mip_status == highspy.HighsModelStatus.kOptimal and not S.repaired:  # stopped at its gap
+        return "gap_limit"
+    return "heuristic"
 
 
 def solve_cover(
@@ -373,17 +322,18 @@ def solve_cover(
         raise ValueError(f"method must be 'milp' or 'greedy', got {method!r}")
     if not time_limit > 0.0 or not mip_rel_gap >= 0.0:
         raise ValueError("time_limit must be > 0 and mip_rel_gap >= 0")
-    csr = _as_csr(A)
-    c = _as_costs(costs, csr.shape[1])
+    csr = as_csr(A)
+    c = as_costs(costs, csr.shape[1])
     m, n = csr.shape
     if m == 0:
         empty = np.zeros(0, dtype=np.int64)
         return CoverResult(empty, method, "optimal", 0.0, 0.0, 0.0, time.perf_counter() - t0, 0, n)
-    _check_coverable(csr)
+    check_coverable(csr)
     if method == "milp":
         return _solve_milp(csr, c, t0, time_limit, mip_rel_gap, threads)
-    greedy = _complete(csr, c, np.zeros(0, dtype=np.int64))
+    greedy = complete_cover(csr, c, np.zeros(0, dtype=np.int64))
     objective = float(c[greedy].sum())
+    elapsed = time.perf_counter() - t0
     return CoverResult(
-        greedy, "greedy", "heuristic", objective, None, None, time.perf_counter() - t0, m, n
+        greedy, "greedy", "heuristic", objective, None, None, elapsed, m, n, {}, elapsed
     )

@@ -1,0 +1,88 @@
+"""The cover problem min c·y, A y >= 1, y binary, A (M × N) in [0, 1]: input checks, tolerance.
+
+Tolerance: a row counts as covered when its coverage is >= 1 - 1e-9 (`COVER_TOL`); the
+covers this package builds reach 1 - BUILD_TOL, a margin so that sums taken in another
+order still pass `is_cover`.
+"""
+
+from __future__ import annotations
+
+from typing import Any, TypeAlias
+
+import numpy as np
+import scipy.sparse as sp
+
+from vpp_core.errors import SolverError
+
+COVER_TOL = 1e-9
+"""A row i is covered by y when sum_j A_ij y_j >= 1 - COVER_TOL."""
+BUILD_TOL = COVER_TOL / 2
+"""Covers built here reach 1 - BUILD_TOL, a margin for summation order."""
+
+SparseLike: TypeAlias = sp.csr_array | sp.csr_matrix
+
+
+def as_csr(A: Any) -> sp.csr_array:
+    """(M, N) canonical float64 CSR copy of A: sorted indices, no duplicates, no stored zeros."""
+    if not (sp.issparse(A) or isinstance(A, np.ndarray)):
+        raise SolverError(f"coverage matrix must be a scipy sparse array, got {type(A).__name__}")
+    if len(A.shape) != 2:
+        raise SolverError(f"coverage matrix must be 2-D, got shape {A.shape}")
+    csr = sp.csr_array(A, dtype=np.float64, copy=True)
+    csr.sum_duplicates()
+    csr.eliminate_zeros()
+    csr.sort_indices()
+    data = csr.data
+    if not np.all(np.isfinite(data)):
+        raise SolverError("coverage matrix holds NaN or infinite values")
+    if data.size and (data.min() < 0.0 or data.max() > 1.0 + COVER_TOL):
+        raise SolverError(
+            f"coverage coefficients must lie in (0, 1], got [{data.min():g}, {data.max():g}]"
+        )
+    np.minimum(data, 1.0, out=data)
+    csr.indices = csr.indices.astype(np.int64, copy=False)
+    csr.indptr = csr.indptr.astype(np.int64, copy=False)
+    return csr
+
+
+def as_costs(costs: np.ndarray | None, n: int) -> np.ndarray:
+    """(N,) float64 costs, all finite and > 0; all ones when None."""
+    if costs is None:
+        return np.ones(n, dtype=np.float64)
+    c = np.asarray(costs, dtype=np.float64).reshape(-1)
+    if c.shape != (n,):
+        raise SolverError(f"costs must have shape ({n},), got {np.shape(costs)}")
+    if not np.all(np.isfinite(c)) or (n and c.min() <= 0.0):
+        raise SolverError("costs must be finite and > 0")
+    return c
+
+
+def check_coverable(A: sp.csr_array) -> None:
+    """Raise SolverError when some row of A (M, N) is not covered even by all columns."""
+    short = np.flatnonzero(np.asarray(A.sum(axis=1)).reshape(-1) < 1.0 - BUILD_TOL)
+    if short.size:
+        raise SolverError(
+            f"{short.size} of {A.shape[0]} rows cannot be covered even with all "
+            f"{A.shape[1]} columns (first: row {int(short[0])})"
+        )
+
+
+def indicator(n: int, selected: np.ndarray) -> np.ndarray:
+    """(N,) float64 0/1 vector of the column indices `selected` (K,)."""
+    idx = np.asarray(selected, dtype=np.int64).reshape(-1)
+    if idx.size and (idx.min() < 0 or idx.max() >= n):
+        raise ValueError(f"selected column index out of range [0, {n})")
+    y = np.zeros(n, dtype=np.float64)
+    y[idx] = 1.0
+    return y
+
+
+def coverage(A: sp.csr_array, selected: np.ndarray) -> np.ndarray:
+    """(M,) row coverage sum_j A_ij y_j of the selected columns (K,)."""
+    return np.asarray(A @ indicator(A.shape[1], selected), dtype=np.float64).reshape(-1)
+
+
+def is_cover(A: SparseLike, selected: np.ndarray, tol: float = COVER_TOL) -> bool:
+    """True when every row i of A (M, N) has sum_j A_ij y_j >= 1 - tol for y = selected (K,)."""
+    csr = sp.csr_array(A, dtype=np.float64)
+    return bool(np.all(coverage(csr, selected) >= 1.0 - tol))

@@ -82,7 +82,8 @@ def mesh_instances(
         backend = make_backend(part)
         for count in counts:
             t0 = time.perf_counter()
-            request = PlanRequest(sensor=make_sensor(None), candidates=CandidateGenerator(count=count))
+            generator = CandidateGenerator(count=count)
+            request = PlanRequest(sensor=make_sensor(None), candidates=generator)
             views, _ = candidates_for(part, request, backend)
             trace = trace_counts(part, request.sensor, views, backend=backend)
             trace_s = time.perf_counter() - t0
@@ -149,7 +150,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--mesh", action="store_true", help="FILEs are meshes (none: all shared)")
     ap.add_argument("--candidates", type=int, nargs="+", default=[500, 2000])
     ap.add_argument("--formulation", nargs="+", default=["density", "visibility"])
-    ap.add_argument("--synthetic", metavar="ROWSxCOLS", help="the window instance, e.g. 200000x2000")
+    ap.add_argument("--synthetic", metavar="ROWSxCOLS", help="window instance, e.g. 200000x2000")
     ap.add_argument("--binary", action="store_true", help="synthetic with 0/1 coefficients")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--lp", action="store_true", help="also solve the LP relaxation on its own")

@@ -126,3 +126,10 @@ def test_time_limit_is_kept_on_a_hard_instance() -> None:
     assert res.time_s < 3.0 + 2.0
     assert is_cover(A, res.selected) and res.status in ("time_limit", "optimal")
     assert res.bound is not None and res.bound <= res.objective
+
+
+def test_lp_bound_survives_a_change_of_thread_count() -> None:
+    A, costs = random_instance(0, True)
+    ref = linprog(costs, A_ub=-A.toarray(), b_ub=-np.ones(A.shape[0]), bounds=(0, 1))
+    for threads in (1, 2, 1):
+        assert lp_bound(A, costs, 10.0, threads).bound == pytest.approx(ref.fun, rel=1e-7)

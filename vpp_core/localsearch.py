@@ -87,23 +87,28 @@ def _repair(
     rng: np.random.Generator,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(added, pruned, new coverage (M,)) after dropping `drop` from the chosen columns."""
-    cov = cov - coverage_of(csc, drop, A.shape[0])
+    cov = cov - _coverage_of(csc, drop, A.shape[0])
     short = np.flatnonzero(cov < 1.0 - BUILD_TOL)
     cand = np.unique(A[short].indices)
-    cand = cand[~chosen[cand] | np.isin(cand, drop)]
+    dropped = np.isin(cand, drop)
+    usable = ~chosen[cand] | dropped
+    cand, dropped = cand[usable], dropped[usable]
     noisy = costs[cand] * rng.uniform(1.0, 1.0 + NOISE, size=cand.size)
-    noisy[np.isin(cand, drop)] *= 1.0 + 2.0 * NOISE
+    noisy[dropped] *= 1.0 + 2.0 * NOISE
     sub = sp.csc_array(A[short][:, cand])
     added = cand[np.asarray(lazy_greedy(sub, noisy, 1.0 - cov[short]), dtype=np.int64)]
-    cov = cov + coverage_of(csc, added, A.shape[0])
+    cov = cov + _coverage_of(csc, added, A.shape[0])
     keep = chosen.copy()
     keep[drop] = False
     pruned = _prune_near(A, csc, costs, keep, cov, added, rng)
-    return added, pruned, cov - coverage_of(csc, pruned, A.shape[0])
+    return added, pruned, cov - _coverage_of(csc, pruned, A.shape[0])
 
 
-def coverage_of(csc: sp.csc_array, cols: np.ndarray, m: int) -> np.ndarray:
-    """(M,) summed coverage of the columns `cols` (k,) of csc (M, N)."""
+def _coverage_of(csc: sp.csc_array, cols: np.ndarray, m: int) -> np.ndarray:
+    """(M,) summed coverage of the columns `cols` (k,) of csc (M, N).
+
+    `cover.coverage` multiplies the whole matrix; this touches only the k columns.
+    """
     if cols.size == 0:
         return np.zeros(m)
     block = csc[:, cols]

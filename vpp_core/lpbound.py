@@ -12,8 +12,8 @@ so columns past the incumbent's cost cannot be in a cheaper cover.
 
 from __future__ import annotations
 
-import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import highspy
@@ -61,22 +61,44 @@ def highs_model(A: sp.csr_array, costs: np.ndarray, integer: bool = False) -> hi
     return lp
 
 
+HighsOption = bool | int | float | str
+
+
+def silent_highs(options: dict[str, HighsOption], threads: int | None) -> highspy.Highs:
+    """A HiGHS instance with logging off and `options` set (ValueError on a rejected one)."""
+    h = highspy.Highs()  # type: ignore[no-untyped-call]
+    options = {"output_flag": False, "log_to_console": False, **options}
+    if threads is not None:
+        options["threads"] = int(threads)
+    for name, value in options.items():
+        if h.setOptionValue(name, value) != highspy.HighsStatus.kOk:
+            raise ValueError(f"HiGHS rejected option {name}={value!r}")
+    return h
+
+
+def run_highs(
+    h: highspy.Highs, threads: int | None, prepare: Callable[[], object] = lambda: None
+) -> None:
+    """prepare(), h.run(); again after a scheduler reset if HiGHS's threads were set otherwise."""
+    prepare()
+    if h.run() == highspy.HighsStatus.kError and threads is not None:
+        highspy.Highs.resetGlobalScheduler(True)  # scheduler was started with another count
+        prepare()
+        h.run()
+
+
 def lp_bound(
     A: sp.csr_array, costs: np.ndarray, time_limit: float, threads: int | None = None
 ) -> LpBound:
     """Lagrangian bound of the cover of A (M, N), costs (N,) at the LP duals HiGHS finds."""
     t0 = time.perf_counter()
     m, n = A.shape
-    h = highspy.Highs()  # type: ignore[no-untyped-call]
-    h.setOptionValue("output_flag", False)
-    h.setOptionValue("time_limit", max(float(time_limit), 0.01))
+    options: dict[str, HighsOption] = {"time_limit": max(float(time_limit), 0.01)}
     if A.nnz > IPM_NNZ:
-        h.setOptionValue("solver", "ipm")
-        h.setOptionValue("run_crossover", "off")
-    if threads is not None:
-        h.setOptionValue("threads", int(threads))
+        options |= {"solver": "ipm", "run_crossover": "off"}
+    h = silent_highs(options, threads)
     h.passModel(highs_model(A, costs))
-    h.run()
+    run_highs(h, threads)
     solution = h.getSolution()
     u = np.zeros(m)
     x = np.zeros(n)
@@ -96,6 +118,4 @@ def columns_worth_keeping(lp: LpBound, incumbent: float, step: float) -> np.ndar
     """
     target = incumbent - step
     slack = _FIX_TOL * max(1.0, abs(target))
-    if not math.isfinite(lp.bound):
-        return np.ones(lp.reduced.shape, dtype=bool)
     return np.asarray(lp.bound + np.maximum(lp.reduced, 0.0) <= target + slack)

@@ -2,11 +2,10 @@
 
 A is (M rows × N columns); rows are faces, columns candidate viewpoints. A is either 0/1
 (visibility, the classical set cover) or real partial coverage S (several partial columns
-may add up to cover a row). Two solvers: a lazy greedy with redundancy removal
-(`greedy_cover`) and HiGHS branch-and-cut (`solve_cover(method="milp")`) warm-started from it.
-
-Tolerance: a row counts as covered when its coverage is >= 1 - 1e-9 (`COVER_TOL`),
-everywhere: the feasibility check, the greedy, `remove_redundant` and `is_cover`.
+may add up to cover a row). `solve_cover(method="greedy")` is greedy + redundancy removal;
+`method="milp"` reduces the model, then spends its time on the LP bound, a quick exact
+HiGHS try, local search, HiGHS on a core and HiGHS on the reduced-cost-fixed model
+(docs/setcover.md). Tolerances are those of `vpp_core.cover`.
 """
 
 from __future__ import annotations
@@ -30,7 +29,15 @@ from vpp_core.cover import (
 )
 from vpp_core.greedy import complete_cover, greedy_cover, prune_cover, remove_redundant
 from vpp_core.localsearch import improve
-from vpp_core.lpbound import LpBound, columns_worth_keeping, highs_model, lp_bound
+from vpp_core.lpbound import (
+    HighsOption,
+    LpBound,
+    columns_worth_keeping,
+    highs_model,
+    lp_bound,
+    run_highs,
+    silent_highs,
+)
 from vpp_core.reduce import reduce_cover
 
 __all__ = [
@@ -91,22 +98,14 @@ def _trivial_bound(A: sp.csr_array, costs: np.ndarray) -> float:
 
 
 def _highs(time_limit: float, mip_rel_gap: float, threads: int | None) -> highspy.Highs:
-    """A silent HiGHS instance with the solve options set."""
-    h = highspy.Highs()  # type: ignore[no-untyped-call]
-    options: dict[str, bool | int | float] = {
-        "output_flag": False,
-        "log_to_console": False,
+    """A silent HiGHS instance with the MIP options set."""
+    options: dict[str, HighsOption] = {
         "time_limit": float(time_limit),
         "mip_rel_gap": float(mip_rel_gap),
         "primal_feasibility_tolerance": _HIGHS_FEAS_TOL,
         "mip_feasibility_tolerance": _HIGHS_FEAS_TOL,
     }
-    if threads is not None:
-        options["threads"] = int(threads)
-    for name, value in options.items():
-        if h.setOptionValue(name, value) != highspy.HighsStatus.kOk:
-            raise ValueError(f"HiGHS rejected option {name}={value!r}")
-    return h
+    return silent_highs(options, threads)
 
 
 @dataclass(frozen=True)
@@ -132,11 +131,7 @@ def _run_highs(
     warm = highspy.HighsSolution()
     warm.col_value = indicator(A.shape[1], start).tolist()
     warm.value_valid = True
-    h.setSolution(warm)
-    if h.run() == highspy.HighsStatus.kError and threads is not None:
-        highspy.Highs.resetGlobalScheduler(True)  # scheduler was started with another count
-        h.setSolution(warm)
-        h.run()
+    run_highs(h, threads, lambda: h.setSolution(warm))
     info = h.getInfo()
     selected = None
     if info.primal_solution_status == _HIGHS_START_FEASIBLE:
@@ -227,7 +222,7 @@ def _search(S: _Search, mip_rel_gap: float) -> None:
     S.bound = max(S.bound, lp.bound)
     if S.closed():
         return
-    target = math.ceil(S.bound - _INT_BOUND_EPS) if S.integral else S.bound
+    target = _closes(S.bound, S.objective, S.integral)[0]
     if S.A.nnz > LOCAL_SEARCH_NNZ:  # HiGHS cannot branch on this: search locally instead
         S.offer(improve(S.A, S.costs, S.best, S.deadline, target=target))
         return

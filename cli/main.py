@@ -56,6 +56,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--sensor", type=Path, help="sensor JSON (SPEC §2); default: paper camera")
     p.add_argument("--resolution", type=float, default=0.18, help="target resolution, mm")
     p.add_argument("--formulation", default="density", choices=["density", "visibility"])
+    p.add_argument(
+        "--min-coverage",
+        type=float,
+        default=1.0,
+        help="cover this fraction of the coverable area (partial cover); default 1 = all",
+    )
     cand = p.add_mutually_exclusive_group()
     cand.add_argument("--candidates", type=int, default=500, help="candidates to generate")
     cand.add_argument("--candidates-file", type=Path, help="JSON list of {position, gaze, up?}")
@@ -126,7 +132,10 @@ def run_plan(args: argparse.Namespace) -> int:
             progress=report,
             load_s=load_s,
         )
-    Console().print(summary(doc))
+    console = Console()
+    console.print(summary(doc))
+    if doc.diagnostics and doc.diagnostics.hint:
+        console.print(f"[yellow]note:[/] {doc.diagnostics.hint}", highlight=False)
     if args.output:
         _write(args.output, doc.model_dump_json(indent=1))
         print(f"plan written to {args.output}")
@@ -156,7 +165,11 @@ def _request(args: argparse.Namespace) -> PlanRequest:
         )
         return PlanRequest(
             sensor=sensor,
-            target=Target(resolution_mm=args.resolution, formulation=args.formulation),
+            target=Target(
+                resolution_mm=args.resolution,
+                formulation=args.formulation,
+                min_coverage=args.min_coverage,
+            ),
             candidates=candidates,
             solver=SolverSettings(
                 name=args.solver, time_limit_s=args.time_limit, mip_rel_gap=args.gap
@@ -261,6 +274,8 @@ def summary(doc: PlanDocument) -> Table:
         ),
         ("median resolution", f"{_g(m.resolution.median_mm)} mm"),
         ("uncoverable faces", f"{doc.uncoverable.faces} ({doc.uncoverable.area_mm2:.4g} mm²)"),
+        *_partial_rows(doc),
+        *_diagnostic_rows(doc),
         (
             "rays",
             f"{doc.rays.pixels:.3g} pixels, {doc.rays.cast:.3g} cast "
@@ -271,6 +286,48 @@ def summary(doc: PlanDocument) -> Table:
     for row in rows:
         table.add_row(*row)
     return table
+
+
+def _partial_rows(doc: PlanDocument) -> list[tuple[str, str]]:
+    """Summary rows of a partial cover (none for the strict cover)."""
+    p = doc.partial
+    if p is None:
+        return []
+    return [
+        (
+            f"partial cover (min {p.min_coverage:.2%})",
+            f"{p.covered_fraction:.3%} of the coverable area; left out {p.left_out.faces} "
+            f"faces ({p.left_out.area_mm2:.4g} mm²)",
+        )
+    ]
+
+
+def _diagnostic_rows(doc: PlanDocument) -> list[tuple[str, str]]:
+    """Summary rows of the diagnostics: the faces that can force views."""
+    d = doc.diagnostics
+    if d is None:
+        return []
+    sc, inner = d.single_candidate, d.internal
+    return [
+        (
+            "sub-pixel faces",
+            f"{d.subpixel.faces} ({d.subpixel.area_mm2:.4g} mm²) below "
+            f"{d.pixel_footprint_mm:.3g}² mm²",
+        ),
+        (
+            "single-candidate faces",
+            f"{sc.faces} ({sc.area_mm2:.4g} mm²), {sc.one_ray} hit by one ray",
+        ),
+        (
+            "internal faces",
+            f"{inner.enclosed.faces} enclosed ({inner.tested} tested), "
+            f"{inner.back_to_back.faces} back-to-back",
+        ),
+        (
+            "views only for such faces",
+            f"{d.driven_views} of {len(d.viewpoints)} ({d.driven_area_mm2:.4g} mm²)",
+        ),
+    ]
 
 
 def _g(x: float | None) -> str:

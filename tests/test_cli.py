@@ -98,6 +98,7 @@ def test_plan_with_generated_candidates_writes_all_sections(tmp_path):
         "solver",
         "metrics",
         "uncoverable",
+        "diagnostics",
         "timings_s",
     ):
         assert key in doc
@@ -121,6 +122,28 @@ def test_plan_with_generated_candidates_writes_all_sections(tmp_path):
         _small_sensor(tmp_path),
     )
     assert json.loads(out2.read_text())["candidates"] == doc["candidates"]
+
+
+def test_min_coverage_plans_a_partial_cover_and_reports_it(tmp_path):
+    mesh = tmp_path / "box.stl"
+    trimesh.creation.box([60, 40, 20]).export(mesh)
+    out = tmp_path / "plan.json"
+    common = ("--candidates", "40", "--seed", "1", "--sensor", _small_sensor(tmp_path), "-q")
+    run = vpp("plan", mesh, *common, "--min-coverage", "0.9", "-o", out)
+    assert run.returncode == 0, run.stderr
+    assert "partial cover (min 90.00%)" in run.stdout and "sub-pixel faces" in run.stdout
+    doc = json.loads(out.read_text())
+    assert doc["target"]["min_coverage"] == 0.9
+    part = doc["partial"]
+    assert part["covered_fraction"] >= 0.9
+    assert part["covered_area_mm2"] + part["left_out"]["area_mm2"] == pytest.approx(
+        part["coverable_area_mm2"]
+    )
+    strict = tmp_path / "strict.json"
+    assert vpp("plan", mesh, *common, "-o", strict).returncode == 0
+    strict_doc = json.loads(strict.read_text())
+    assert strict_doc["partial"] is None
+    assert len(doc["viewpoints"]) <= len(strict_doc["viewpoints"])
 
 
 def _small_sensor(tmp_path: Path) -> Path:
@@ -174,6 +197,8 @@ def test_accepted_bad_meshes_plan_and_report_the_problem(name, tmp_path):
         (["--time-limit", "0"], "time_limit"),
         (["--decimate", "1.5"], "decimate"),
         (["--threads", "0"], "at least 1"),
+        (["--min-coverage", "0"], "min_coverage"),
+        (["--min-coverage", "1.5"], "min_coverage"),
     ],
 )
 def test_bad_options_fail_with_one_line_and_exit_2(plate_files, args, match):

@@ -158,3 +158,49 @@ def _c2w(c) -> np.ndarray:
     m[:3, :3] = np.column_stack([x, y, z])
     m[:3, 3] = c.position
     return m
+
+
+def partial_optimum(s: np.ndarray, w: np.ndarray, fraction: float) -> int:
+    """Fewest columns satisfying rows of weight >= fraction · Σw (scipy milp, z binary)."""
+    m, n = s.shape
+    rows = np.hstack([s, -np.eye(m)])
+    weight = np.concatenate([np.zeros(n), w])[None, :]
+    res = milp(
+        np.concatenate([np.ones(n), np.zeros(m)]),
+        constraints=[LinearConstraint(rows, lb=0), LinearConstraint(weight, lb=fraction * w.sum())],
+        integrality=np.ones(n + m),
+        bounds=Bounds(0, 1),
+    )
+    return int(round(res.fun))
+
+
+@pytest.mark.parametrize("formulation", ["density", "visibility"])
+def test_partial_cover_claims_hold_independently(part, formulation):
+    from vpp_core.plan import plan
+
+    res, fraction = 1.2, 0.97
+    request = PlanRequest(
+        sensor=SMALL,
+        target=Target(resolution_mm=res, formulation=formulation, min_coverage=fraction),
+        candidates=CandidateGenerator(count=30, seed=3),
+    )
+    doc = PlanDocument.model_validate_json(plan(part, request).model_dump_json())
+    r = recount(part, SMALL, np.array([_c2w(c) for c in doc.candidates])).toarray()
+    s = s_matrix(r, part.areas, res, formulation)
+    faces = np.flatnonzero(r.any(axis=1))
+    w = part.areas[faces]
+    chosen = [v.id for v in doc.viewpoints]
+    met = s[:, chosen].sum(axis=1) >= 1 - 1e-9
+    p = doc.partial
+    assert p is not None and p.min_coverage == fraction
+    assert p.coverable_area_mm2 == pytest.approx(w.sum(), rel=1e-3)
+    assert p.covered_area_mm2 == pytest.approx(w[met].sum(), rel=1e-3)
+    assert p.covered_fraction >= fraction and w[met].sum() >= fraction * w.sum() * (1 - 1e-3)
+    assert sorted(p.left_out.ids) == sorted(faces[~met].tolist())
+    assert doc.solver.status == "optimal"
+    assert doc.solver.objective == len(chosen) == partial_optimum(s, w, fraction)
+    strict = plan(
+        part,
+        request.model_copy(update={"target": Target(resolution_mm=res, formulation=formulation)}),
+    )
+    assert len(chosen) <= len(strict.viewpoints)

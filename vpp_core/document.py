@@ -6,6 +6,7 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field
 
+from vpp_core.diagnostics import Diagnostics
 from vpp_core.metrics import Metrics
 from vpp_core.sensor import Sensor
 
@@ -21,6 +22,13 @@ class Target(_Strict):
 
     resolution_mm: float = Field(0.18, gt=0, le=1e4)
     formulation: Literal["density", "visibility"] = "density"
+    min_coverage: float = Field(
+        1.0,
+        gt=0,
+        le=1,
+        description="fraction of the coverable area to cover; 1 = every coverable face "
+        "(SPEC §3-4); below 1 a partial cover may leave small faces out",
+    )
 
 
 class CandidateGenerator(_Strict):
@@ -131,6 +139,20 @@ class Uncoverable(BaseModel):
     ids: list[int]
 
 
+class LeftOut(Uncoverable):
+    """Coverable faces a partial cover leaves out."""
+
+
+class PartialInfo(BaseModel):
+    """What a partial cover (target.min_coverage < 1) covers of the coverable area."""
+
+    min_coverage: float
+    coverable_area_mm2: float
+    covered_area_mm2: float
+    covered_fraction: float
+    left_out: LeftOut
+
+
 class Timings(BaseModel):
     """Wall seconds per stage."""
 
@@ -140,6 +162,7 @@ class Timings(BaseModel):
     matrices: float = 0.0
     solve: float = 0.0
     metrics: float = 0.0
+    diagnostics: float = 0.0
 
 
 class RaysInfo(BaseModel):
@@ -170,5 +193,7 @@ class PlanDocument(BaseModel):
     solver: SolverOut
     metrics: Metrics
     uncoverable: Uncoverable
+    partial: PartialInfo | None = None
+    diagnostics: Diagnostics | None = None
     rays: RaysInfo
     timings_s: Timings

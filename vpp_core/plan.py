@@ -11,16 +11,20 @@ import numpy as np
 
 from vpp_core.candidates import GeneratorSettings, generate
 from vpp_core.density import CoverModel, cover_model
+from vpp_core.diagnostics import diagnose
 from vpp_core.document import (
     CandidateGenerator,
     CandidateInfo,
     CandidateOut,
+    LeftOut,
     MeshInfo,
+    PartialInfo,
     PlanDocument,
     PlanRequest,
     RaysInfo,
     SolverOut,
     SolverSettings,
+    Target,
     Timings,
     Uncoverable,
     ViewpointIn,
@@ -29,9 +33,9 @@ from vpp_core.document import (
 from vpp_core.errors import LimitError
 from vpp_core.mesh import Part
 from vpp_core.metrics import evaluate
+from vpp_core.partial import PartialCover, solve_partial
 from vpp_core.pose import Viewpoints, make_viewpoints
 from vpp_core.raytrace import RayBackend, Trace, make_backend, trace_counts
-from vpp_core.setcover import CoverResult, solve_cover
 from vpp_core.tour import path_length, visiting_order
 
 Progress = Callable[[str, int, int], None]
@@ -101,10 +105,18 @@ def check_request(request: PlanRequest, limits: Limits) -> None:
         explicit_viewpoints(spec.viewpoints)  # ViewpointError now
 
 
-def solve(model: CoverModel, settings: SolverSettings, threads: int | None = None) -> CoverResult:
-    """Solve the covering rows with the requested solver settings."""
-    return solve_cover(
+def solve(
+    model: CoverModel,
+    areas: np.ndarray,
+    target: Target,
+    settings: SolverSettings,
+    threads: int | None = None,
+) -> PartialCover:
+    """Cover the rows (all, or target.min_coverage of their area (M,) mm²) as `settings` ask."""
+    return solve_partial(
         model.matrix,
+        areas[model.faces],
+        target.min_coverage,
         method=settings.name,
         time_limit=settings.time_limit_s,
         mip_rel_gap=settings.mip_rel_gap,
@@ -152,7 +164,15 @@ def plan(
             part, request.sensor, views, backend=backend, threads=threads, progress=done
         )
     return finish(
-        part, request, views, info, trace, timings=clock.timings, threads=threads, progress=progress
+        part,
+        request,
+        views,
+        info,
+        trace,
+        timings=clock.timings,
+        threads=threads,
+        progress=progress,
+        backend=backend,
     )
 
 
@@ -167,8 +187,9 @@ def finish(
     threads: int | None = None,
     progress: Progress | None = None,
     reused: bool = False,
+    backend: RayBackend | None = None,
 ) -> PlanDocument:
-    """From R on: matrices, cover, visiting order, metrics and the document."""
+    """From R on: matrices, cover, visiting order, metrics, diagnostics and the document."""
     clock = _Clock(progress, timings)
     with clock.stage("matrices"):
         model = cover_model(
@@ -179,10 +200,21 @@ def finish(
             request.target.formulation,
         )
     with clock.stage("solve"):
-        result = solve(model, request.solver, threads)
+        cover = solve(model, part.areas, request.target, request.solver, threads)
     with clock.stage("metrics"):
-        doc = document(part, request, views, info, trace, model, result, clock.timings)
-    doc.timings_s.metrics = clock.timings.metrics
+        doc = document(part, request, views, info, trace, model, cover, clock.timings)
+    with clock.stage("diagnostics"):
+        doc.diagnostics = diagnose(
+            part,
+            request.sensor,
+            trace.counts,
+            model.matrix,
+            model.faces,
+            cover.result.selected,
+            backend or make_backend(part, trace.backend),
+            partial=request.target.min_coverage < 1,
+        )
+    doc.timings_s = clock.timings
     doc.rays.reused = reused
     return doc
 
@@ -206,10 +238,11 @@ def document(
     info: CandidateInfo,
     trace: Trace,
     model: CoverModel,
-    result: CoverResult,
+    cover: PartialCover,
     timings: Timings,
 ) -> PlanDocument:
     """Assemble the plan document from the stages' results."""
+    result = cover.result
     order = visiting_order(views.positions[result.selected])
     chosen = result.selected[order]
     metrics = evaluate(trace.counts, part.areas, part.counted, chosen, request.target.resolution_mm)
@@ -243,6 +276,7 @@ def document(
             area_mm2=float(part.areas[model.uncoverable].sum()),
             ids=model.uncoverable.tolist(),
         ),
+        partial=_partial_info(part, model, cover, request.target.min_coverage),
         rays=RaysInfo(
             backend=trace.backend,
             per_view=request.sensor.n_pixels,
@@ -253,6 +287,26 @@ def document(
             trace_s=round(trace.seconds, 4),
         ),
         timings_s=timings,
+    )
+
+
+def _partial_info(
+    part: Part, model: CoverModel, cover: PartialCover, fraction: float
+) -> PartialInfo | None:
+    """The partial cover's figures, or None for the strict cover."""
+    if fraction >= 1.0:
+        return None
+    areas = part.areas[model.faces]
+    left = model.faces[~cover.satisfied]
+    total = float(areas.sum())
+    return PartialInfo(
+        min_coverage=fraction,
+        coverable_area_mm2=total,
+        covered_area_mm2=cover.achieved,
+        covered_fraction=cover.achieved / total if total > 0 else 1.0,
+        left_out=LeftOut(
+            faces=len(left), area_mm2=float(part.areas[left].sum()), ids=left.tolist()
+        ),
     )
 
 

@@ -54,7 +54,7 @@ def reduce_cover(A: sp.csr_array, costs: np.ndarray) -> Reduced:
         implied = _unimplied_rows(matrix)
         dropped_rows += matrix.shape[0] - len(implied)
         matrix = sp.csr_array(matrix[implied])
-        keep = _undominated_columns(matrix, costs[columns])
+        keep = undominated_columns(matrix, costs[columns])
         dropped_cols += matrix.shape[1] - len(keep)
         matrix, columns = sp.csr_array(matrix[:, keep]), columns[keep]
         if matrix.shape == before:
@@ -123,14 +123,20 @@ def _rows_equal(A: sp.csr_array, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return ok
 
 
-def unique_rows(A: sp.csr_array) -> np.ndarray:
-    """(R,) int64 sorted indices of the first row of each group of identical rows of A (M, N)."""
+def row_groups(A: sp.csr_array) -> np.ndarray:
+    """(M,) int64: for each row of A (M, N) (sorted indices), the first row identical to it."""
     _, first, inverse = np.unique(_row_hashes(A), return_index=True, return_inverse=True)
     rep = first[inverse.reshape(-1)].astype(np.int64)
     dup = np.flatnonzero(rep != np.arange(A.shape[0]))
-    is_dup = np.zeros(A.shape[0], dtype=bool)
-    is_dup[dup[_rows_equal(A, dup, rep[dup])]] = True  # hash collisions stay separate rows
-    return np.flatnonzero(~is_dup)
+    collided = dup[~_rows_equal(A, dup, rep[dup])]  # hash collisions stay separate rows
+    rep[collided] = collided
+    return rep
+
+
+def unique_rows(A: sp.csr_array) -> np.ndarray:
+    """(R,) int64 sorted indices of the first row of each group of identical rows of A (M, N)."""
+    rep = row_groups(A)
+    return np.flatnonzero(rep == np.arange(A.shape[0]))
 
 
 def _unimplied_rows(A: sp.csr_array) -> np.ndarray:
@@ -162,7 +168,7 @@ def _implies(A: sp.csr_array, k: int, i: int) -> bool:
     return bool(np.all(vals_i >= A.data[A.indptr[k] : A.indptr[k + 1]] - TOL))
 
 
-def _undominated_columns(A: sp.csr_array, costs: np.ndarray) -> np.ndarray:
+def undominated_columns(A: sp.csr_array, costs: np.ndarray) -> np.ndarray:
     """(n',) sorted indices of the columns no other column dominates (ties: first kept)."""
     n = A.shape[1]
     if n < 2 or A.shape[0] == 0:

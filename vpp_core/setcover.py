@@ -155,7 +155,7 @@ def _verified(
     return complete_cover(A, costs, mip), True
 
 
-def _closes(bound: float, objective: float, integral: bool) -> tuple[float, bool]:
+def closes_gap(bound: float, objective: float, integral: bool) -> tuple[float, bool]:
     """(bound rounded up for integer costs and capped at objective, whether it closes the gap)."""
     if integral:  # integer costs: the optimum is an integer
         bound = min(float(math.ceil(bound - _INT_BOUND_EPS)), objective)
@@ -197,7 +197,7 @@ class _Search:
         return share * (self.deadline - time.perf_counter())
 
     def closed(self) -> bool:
-        return _closes(self.bound, self.objective, self.integral)[1]
+        return closes_gap(self.bound, self.objective, self.integral)[1]
 
     def offer(self, cover: np.ndarray | None) -> None:
         if cover is not None and self.costs[cover].sum() < self.objective:
@@ -222,7 +222,7 @@ def _search(S: _Search, mip_rel_gap: float) -> None:
     S.bound = max(S.bound, lp.bound)
     if S.closed():
         return
-    target = _closes(S.bound, S.objective, S.integral)[0]
+    target = closes_gap(S.bound, S.objective, S.integral)[0]
     if S.A.nnz > LOCAL_SEARCH_NNZ:  # HiGHS cannot branch on this: search locally instead
         S.offer(improve(S.A, S.costs, S.best, S.deadline, target=target))
         return
@@ -272,7 +272,7 @@ def _solve_milp(
         selected, S.repaired = complete_cover(A, costs, selected), True
     objective = float(costs[selected].sum())
     fixed_cost = float(costs[red.fixed].sum())
-    bound, closed = _closes(S.bound, objective - fixed_cost, integral)
+    bound, closed = closes_gap(S.bound, objective - fixed_cost, integral)
     status = _status(S, closed)
     gap = 0.0 if status == "optimal" else (objective - bound - fixed_cost) / objective
     elapsed = time.perf_counter() - t0

@@ -1,0 +1,118 @@
+"""Diagnostics (vpp_core.diagnostics): each figure against a direct, independent count."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+import trimesh
+
+from vpp_core.diagnostics import _hint, back_to_back, enclosed_faces, private_rows
+from vpp_core.document import CandidateGenerator, PlanRequest, Target
+from vpp_core.mesh import part_from_arrays
+from vpp_core.raytrace import make_backend
+from vpp_core.sensor import Sensor
+
+SMALL = Sensor(width_px=320, height_px=200, fov_x_deg=38.7, fov_y_deg=24.75)
+
+
+def test_faces_inside_a_closed_box_are_enclosed_and_outer_faces_not():
+    outer = trimesh.creation.box([100, 100, 100])
+    inner = trimesh.creation.box([20, 20, 20])
+    mesh = trimesh.util.concatenate([outer, inner])
+    part = part_from_arrays(mesh.vertices, mesh.faces)
+    faces = np.arange(part.n_faces)
+    got = enclosed_faces(part, faces, make_backend(part))
+    inside = np.abs(part.vertices[part.faces].mean(axis=1)).max(axis=1) < 15
+    assert inside.sum() == 12 and np.array_equal(got, inside)
+
+
+def test_an_opening_lets_faces_escape_except_those_that_face_the_floor():
+    box = trimesh.creation.box([100, 100, 100])
+    lid = np.flatnonzero(box.face_normals[:, 2] > 0.9)  # remove the top: an open box
+    keep = np.setdiff1d(np.arange(len(box.faces)), lid)
+    open_box = trimesh.Trimesh(box.vertices, box.faces[keep], process=False)
+    inner = trimesh.creation.box([20, 20, 20])
+    mesh = trimesh.util.concatenate([open_box, inner])
+    part = part_from_arrays(mesh.vertices, mesh.faces)
+    got = enclosed_faces(part, np.arange(part.n_faces), make_backend(part))
+    centre = part.vertices[part.faces].mean(axis=1)
+    under_inner = (np.abs(centre).max(axis=1) < 15) & (part.normals[:, 2] < -0.9)
+    assert under_inner.sum() == 2 and np.array_equal(got, under_inner)  # the rest see the sky
+
+
+def test_back_to_back_faces_are_found():
+    box = trimesh.creation.box([10, 10, 10])
+    flipped = box.faces[:1, ::-1]
+    part = part_from_arrays(box.vertices, np.vstack([box.faces, flipped]))
+    got = back_to_back(part)
+    assert got.sum() == 2 and got[0] and got[-1]
+    assert not back_to_back(part_from_arrays(box.vertices, box.faces)).any()
+
+
+def test_private_rows_match_a_direct_count():
+    rng = np.random.default_rng(1)
+    dense = rng.choice([0.0, 0.4, 0.6, 1.0], size=(40, 8), p=[0.6, 0.15, 0.1, 0.15])
+    A = sp.csr_array(dense)
+    sel = np.array([0, 2, 3, 5, 7])
+    got = private_rows(A, sel).toarray()
+    cov = dense[:, sel].sum(axis=1)
+    for k, j in enumerate(sel):
+        want = (dense[:, j] > 0) & (cov >= 1 - 1e-9) & (cov - dense[:, j] < 1 - 1e-9)
+        assert np.array_equal(got[:, k], want)
+
+
+def test_hint_names_the_largest_fraction_that_leaves_the_faces_out():
+    assert _hint(0, 5, 1.0, 100.0) is None
+    assert "--min-coverage 0.999" in _hint(2, 9, 0.05, 100.0)
+    assert "--min-coverage 0.99," in _hint(2, 9, 0.6, 100.0)
+    assert _hint(2, 9, 30.0, 100.0) is None  # more than 5 % of the area: not a nuisance
+
+
+@pytest.fixture(scope="module")
+def plate_with_sliver():
+    """A 100 mm plate, and a sub-pixel sliver standing on it that few candidates see."""
+    plate = trimesh.creation.box([100, 100, 4])
+    sliver = trimesh.Trimesh(
+        [[30, 30, 2.0], [30.05, 30, 2.0], [30, 30.0, 2.3]], [[0, 1, 2]], process=False
+    )
+    mesh = trimesh.util.concatenate([plate, sliver])
+    return part_from_arrays(mesh.vertices, mesh.faces)
+
+
+def test_plan_diagnostics_agree_with_direct_counts(plate_with_sliver):
+    from vpp_core.density import cover_model
+    from vpp_core.plan import candidates_for, finish
+    from vpp_core.raytrace import trace_counts
+
+    part = plate_with_sliver
+    request = PlanRequest(
+        sensor=SMALL,
+        target=Target(resolution_mm=1.2, formulation="visibility"),
+        candidates=CandidateGenerator(count=40, seed=1),
+    )
+    backend = make_backend(part)
+    views, info = candidates_for(part, request, backend)
+    trace = trace_counts(part, SMALL, views, backend=backend)
+    doc = finish(part, request, views, info, trace, backend=backend)
+    d = doc.diagnostics
+    p = SMALL.pixel_pitch_mm(SMALL.working_distance)
+    assert d.pixel_footprint_mm == pytest.approx(p)
+    small = part.counted & (part.areas < p * p)
+    assert d.subpixel.faces == small.sum() >= 1
+    r = trace.counts.toarray()
+    seen_by = (r > 0).sum(axis=1)
+    single = part.counted & (seen_by == 1)
+    assert d.single_candidate.faces == single.sum()
+    assert d.single_candidate.one_ray == int(((r[single] > 0) & (r[single] == 1)).any(1).sum())
+    model = cover_model(trace.counts, part.areas, part.counted, 1.2, "visibility")
+    chosen = sorted(v.id for v in doc.viewpoints)
+    V = model.matrix.toarray()[:, chosen]
+    for cause in d.viewpoints:
+        k = chosen.index(cause.id)
+        mine = model.faces[(V[:, k] > 0) & (V.sum(axis=1) == 1)]
+        assert cause.private_faces == len(mine)
+        weak = small[mine] | single[mine]
+        assert cause.driven == (len(mine) > 0 and bool(weak.all()))
+    assert d.driven_views == sum(c.driven for c in d.viewpoints)
+    assert (d.hint is not None) == (d.driven_views > 0)

@@ -1,0 +1,122 @@
+"""Partial cover (vpp_core.partial) against brute force, and its guarantees."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from vpp_core.errors import SolverError
+from vpp_core.partial import greedy_partial, satisfied_rows, solve_partial
+from vpp_core.reduce import row_groups
+from vpp_core.setcover import solve_cover
+
+
+def random_model(rng: np.random.Generator, m: int, n: int, binary: bool) -> sp.csr_array:
+    """(m, n) coverable model; 0/1 or partial coefficients in {0.3, 0.5, 0.7, 1}."""
+    dense = (rng.random((m, n)) < 0.3).astype(float)
+    dense[np.arange(m), rng.integers(0, n, m)] = 1.0
+    if not binary:
+        dense *= rng.choice([0.3, 0.5, 0.7, 1.0], size=(m, n))
+        short = dense.sum(axis=1) < 1
+        dense[short, rng.integers(0, n, short.sum())] = 1.0
+    return sp.csr_array(dense)
+
+
+def brute_partial(A: np.ndarray, w: np.ndarray, f: float, c: np.ndarray) -> float:
+    """Least cost of columns satisfying rows of weight >= f·Σw (all subsets)."""
+    n = A.shape[1]
+    best = np.inf
+    for k in range(n + 1):
+        for cols in itertools.combinations(range(n), k):
+            ok = A[:, list(cols)].sum(axis=1) >= 1 - 1e-9
+            if w[ok].sum() >= f * w.sum() - 1e-9 and c[list(cols)].sum() < best:
+                best = c[list(cols)].sum()
+    return float(best)
+
+
+@pytest.mark.parametrize("binary", [True, False])
+@pytest.mark.parametrize("seed", range(12))
+def test_partial_optimum_equals_brute_force(seed, binary):
+    rng = np.random.default_rng(seed)
+    m, n = int(rng.integers(6, 25)), int(rng.integers(4, 10))
+    A = random_model(rng, m, n, binary)
+    A = sp.csr_array(sp.vstack([A, A[:3]]))  # identical rows to merge
+    w = rng.choice([0.0, 0.01, 1.0, 5.0], size=A.shape[0])
+    c = rng.choice([1.0, 2.0, 3.0], size=n) if seed % 3 == 0 else np.ones(n)
+    f = float(rng.choice([0.5, 0.8, 0.95, 0.999]))
+    out = solve_partial(A, w, f, c, time_limit=20)
+    assert out.result.status == "optimal"
+    assert out.result.objective == pytest.approx(brute_partial(A.toarray(), w, f, c))
+    ok = satisfied_rows(A, out.result.selected)
+    assert np.array_equal(ok, out.satisfied)
+    assert w[ok].sum() == pytest.approx(out.achieved) and out.achieved >= out.required - 1e-9
+
+
+def test_greedy_partial_reaches_the_weight_and_prunes():
+    rng = np.random.default_rng(5)
+    A = random_model(rng, 60, 15, binary=False)
+    w = rng.random(60)
+    for f in (0.3, 0.7, 0.99):
+        sel = greedy_partial(A, np.ones(15), w, f * w.sum())
+        assert w[satisfied_rows(A, sel)].sum() >= f * w.sum() - 1e-9
+        for j in sel:  # no column can go on its own
+            assert w[satisfied_rows(A, sel[sel != j])].sum() < f * w.sum() - 1e-12
+
+
+def test_full_fraction_is_the_strict_cover():
+    A = random_model(np.random.default_rng(2), 40, 12, binary=True)
+    out = solve_partial(A, np.ones(40), 1.0)
+    assert out.result.objective == solve_cover(A).objective
+    assert out.satisfied.all()
+
+
+def test_light_rows_are_left_out_and_heavy_ones_forced():
+    # rows 0, 1 need columns 0, 1 alone; row 2 (tiny area) needs column 2 alone
+    A = sp.csr_array(np.array([[1, 0, 0], [0, 1, 0], [0, 0, 1.0], [1, 1, 0]]))
+    w = np.array([10.0, 10.0, 0.001, 10.0])
+    out = solve_partial(A, w, 0.999)
+    assert list(out.result.selected) == [0, 1] and out.result.status == "optimal"
+    assert list(np.flatnonzero(~out.satisfied)) == [2]
+    assert list(solve_partial(A, w, 1.0).result.selected) == [0, 1, 2]
+
+
+def test_half_covered_row_earns_nothing():
+    # row 0 is met only by both columns (0.5 + 0.5): one column gives it no credit
+    A = sp.csr_array(np.array([[0.5, 0.5], [1.0, 0.0]]))
+    out = solve_partial(A, np.array([1.0, 1.0]), 0.75)
+    assert out.result.objective == 2
+    out = solve_partial(A, np.array([1.0, 3.0]), 0.75)
+    assert list(out.result.selected) == [0] and not out.satisfied[0]
+
+
+def test_nothing_required_selects_nothing():
+    A = sp.csr_array(np.eye(3))
+    out = solve_partial(A, np.zeros(3), 0.5)
+    assert out.result.selected.size == 0 and out.result.status == "optimal"
+
+
+def test_time_limit_kept_and_status_truthful():
+    rng = np.random.default_rng(0)
+    A = random_model(rng, 3000, 300, binary=False)
+    out = solve_partial(A, rng.random(3000), 0.99, time_limit=1.0)
+    assert out.result.time_s < 4.0
+    assert out.result.status in ("optimal", "time_limit")
+    if out.result.status != "optimal":
+        assert out.result.bound is not None and out.result.bound < out.result.objective
+
+
+@pytest.mark.parametrize(
+    "weights, fraction",
+    [(np.ones(2), 0.0), (np.ones(2), 1.5), (np.array([1.0, -1.0]), 0.5), (np.ones(3), 0.5)],
+)
+def test_bad_input_is_refused(weights, fraction):
+    with pytest.raises(SolverError):
+        solve_partial(sp.csr_array(np.eye(2)), weights, fraction)
+
+
+def test_row_groups_map_identical_rows_to_the_first():
+    A = sp.csr_array(np.array([[1, 0.5], [0, 1], [1, 0.5], [0, 1], [1, 0]]))
+    assert list(row_groups(A)) == [0, 1, 0, 1, 4]

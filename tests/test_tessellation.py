@@ -1,0 +1,59 @@
+"""Tessellation invariance (issue 10): one geometry, two tessellations, the same view count.
+
+The CAD export of the shared Hirth joint (slivers down to 1.5e-6 mm², non-manifold edges) is
+planned against an isotropic remesh of it made here (pymeshlab, 1 mm edges, features kept),
+with the paper's camera, 0.18 mm and 500 candidates generated on each mesh. Under the
+documented partial cover (min_coverage 0.999) the counts must agree within 1 and both plans
+must cover at least 99.9 % of their coverable area.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tests.conftest import MESHES, shared_dir
+from vpp_core.document import CandidateGenerator, PlanRequest, SolverSettings, Target
+from vpp_core.mesh import Part, load_mesh, part_from_arrays
+
+MIN_COVERAGE = 0.999
+"""The documented partial-cover setting (docs/cad-meshes.md)."""
+
+
+def isotropic_remesh(part: Part, edge_mm: float) -> Part:
+    """The same geometry remeshed with ~`edge_mm` edges, sharp features (> 30°) kept."""
+    pymeshlab = pytest.importorskip("pymeshlab")
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(pymeshlab.Mesh(part.vertices, part.faces))
+    ms.meshing_isotropic_explicit_remeshing(
+        iterations=10, targetlen=pymeshlab.PureValue(edge_mm), featuredeg=30
+    )
+    out = ms.current_mesh()
+    return part_from_arrays(out.vertex_matrix(), out.face_matrix())
+
+
+@pytest.fixture(scope="module")
+def two_tessellations() -> tuple[Part, Part]:
+    data = (shared_dir(MESHES) / "hirth_sample_small.stl").read_bytes()
+    cad = load_mesh(data, "stl")
+    iso = isotropic_remesh(cad, 1.0)
+    assert iso.area_mm2 == pytest.approx(cad.area_mm2, rel=0.03)  # the same geometry
+    assert np.median(iso.areas) > 100 * np.median(cad.areas[cad.areas < 1e-3])
+    return cad, iso
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("formulation", ["visibility", "density"])
+def test_partial_cover_counts_agree_across_tessellations(two_tessellations, formulation):
+    from vpp_core.plan import plan
+
+    request = PlanRequest(
+        target=Target(resolution_mm=0.18, formulation=formulation, min_coverage=MIN_COVERAGE),
+        candidates=CandidateGenerator(count=500),
+        solver=SolverSettings(time_limit_s=15),
+    )
+    docs = [plan(part, request) for part in two_tessellations]
+    counts = [len(d.viewpoints) for d in docs]
+    assert abs(counts[0] - counts[1]) <= 1, counts
+    for d in docs:
+        assert d.partial is not None and d.partial.covered_fraction >= MIN_COVERAGE

@@ -1,0 +1,240 @@
+"""Why a plan needs the views it has: faces that drive the count on CAD tessellations.
+
+- sub-pixel faces: counted faces of area below p², p the pixel footprint at the working
+  distance (SPEC §7), so that a face can hold at most about one ray per view;
+- single-candidate faces: counted faces that exactly one candidate sees, with their rays;
+- internal faces: back-to-back (a face coincides with another of opposite orientation) or
+  enclosed: from points just off either side of the face, none of `ESCAPE_DIRECTIONS` rays
+  spread over the hemisphere leaves the part, so the face lies in a closed cavity or is
+  reached only through cracks (tested on the faces seen by at most one candidate and the
+  selected views' private faces, the ones that can force a view);
+- per selected view, its private faces: rows it alone satisfies (without it the row's demand
+  is not met). A view whose private faces are all of the kinds above is "driven" by them.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import scipy.sparse as sp
+from pydantic import BaseModel
+
+from vpp_core.cover import COVER_TOL, coverage
+from vpp_core.mesh import Part
+from vpp_core.raytrace import RayBackend
+from vpp_core.sensor import Sensor
+
+ESCAPE_DIRECTIONS = 64
+"""Rays per side of a face in the enclosure test (Fibonacci hemisphere)."""
+MAX_ESCAPE_FACES = 20_000
+"""At most this many faces get the enclosure test (the most likely to force a view first)."""
+OFFSET_REL = 1e-6
+"""Ray origins sit this fraction of the part's diagonal off the face."""
+SUGGESTED_COVERAGE = (0.999, 0.995, 0.99, 0.98, 0.95)
+"""Partial-cover fractions the hint may name, largest first."""
+
+
+class FaceGroup(BaseModel):
+    """A set of counted faces: how many and their area (mm²)."""
+
+    faces: int
+    area_mm2: float
+
+
+class SingleCandidate(FaceGroup):
+    """Faces exactly one candidate sees; `one_ray` of them get a single ray from it."""
+
+    one_ray: int
+    median_rays: float | None
+
+
+class Internal(BaseModel):
+    """Back-to-back and enclosed faces (see the module notes); `tested` faces were ray-tested."""
+
+    back_to_back: FaceGroup
+    enclosed: FaceGroup
+    tested: int
+    directions: int
+
+
+class ViewCause(BaseModel):
+    """A selected view's private faces, and how many of them are sub-pixel, single or internal."""
+
+    id: int
+    private_faces: int
+    private_area_mm2: float
+    weak_faces: int
+    weak_area_mm2: float
+    driven: bool
+
+
+class Diagnostics(BaseModel):
+    """Face statistics that explain the view count; `hint` names the option when it helps."""
+
+    pixel_footprint_mm: float
+    subpixel: FaceGroup
+    single_candidate: SingleCandidate
+    internal: Internal
+    viewpoints: list[ViewCause]
+    driven_views: int
+    driven_area_mm2: float
+    hint: str | None
+
+
+def diagnose(
+    part: Part,
+    sensor: Sensor,
+    counts: sp.sparray,
+    matrix: sp.csr_array,
+    rows: np.ndarray,
+    selected: np.ndarray,
+    backend: RayBackend,
+    partial: bool = False,
+) -> Diagnostics:
+    """Diagnostics of views `selected` (K,) given R (M, N) and the cover rows (faces `rows`)."""
+    areas, counted = part.areas, part.counted
+    p = sensor.pixel_pitch_mm(sensor.working_distance)
+    subpixel = counted & (areas < p * p)
+    r = sp.csr_array(counts)
+    seen_by = np.diff(r.indptr)
+    single = counted & (seen_by == 1)
+    private = private_rows(matrix, selected)
+    hard = np.flatnonzero(single | (counted & (seen_by == 0)))
+    mine = np.unique(rows[private.indices])
+    suspects = np.concatenate([mine, np.setdiff1d(hard, mine)])  # private faces first
+    enclosed = np.zeros(part.n_faces, dtype=bool)
+    tested = suspects[:MAX_ESCAPE_FACES]
+    enclosed[tested] = enclosed_faces(part, tested, backend)
+    b2b = back_to_back(part)
+    weak = subpixel | single | enclosed | b2b
+    causes = _causes(private, rows, selected, areas, weak)
+    driven = [c for c in causes if c.driven]
+    driven_area = float(sum(c.private_area_mm2 for c in driven))
+    rays = r.data[r.indptr[:-1][single]] if single.any() else np.zeros(0)
+    return Diagnostics(
+        pixel_footprint_mm=p,
+        subpixel=_group(subpixel, areas),
+        single_candidate=SingleCandidate(
+            **_group(single, areas).model_dump(),
+            one_ray=int(np.count_nonzero(rays == 1)),
+            median_rays=float(np.median(rays)) if rays.size else None,
+        ),
+        internal=Internal(
+            back_to_back=_group(b2b & counted, areas),
+            enclosed=_group(enclosed & counted, areas),
+            tested=len(tested),
+            directions=ESCAPE_DIRECTIONS,
+        ),
+        viewpoints=causes,
+        driven_views=len(driven),
+        driven_area_mm2=driven_area,
+        hint=None if partial else _hint(len(driven), len(causes), driven_area, areas[rows].sum()),
+    )
+
+
+def private_rows(matrix: sp.csr_array, selected: np.ndarray) -> sp.csc_array:
+    """(M, K) bool csc: row i is private to the k-th selected view (met with it, not without)."""
+    cov = coverage(matrix, selected)
+    sub = sp.csc_array(matrix[:, selected])
+    rows = sub.indices
+    alone = (cov[rows] >= 1.0 - COVER_TOL) & (cov[rows] - sub.data < 1.0 - COVER_TOL)
+    out = sp.csc_array((alone, rows, sub.indptr), shape=sub.shape)
+    out.eliminate_zeros()
+    return out
+
+
+def back_to_back(part: Part) -> np.ndarray:
+    """(M,) bool: faces on the same three vertices as another face wound the other way."""
+    rep = part.representative
+    dup = np.flatnonzero(rep != np.arange(part.n_faces))
+    tri = part.vertices[part.faces]  # winding as in the file
+    wound = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    opposite = np.einsum("ij,ij->i", wound[dup], wound[rep[dup]]) < 0
+    out = np.zeros(part.n_faces, dtype=bool)
+    out[dup[opposite]] = True
+    out[rep[dup[opposite]]] = True
+    return out
+
+
+def enclosed_faces(part: Part, faces: np.ndarray, backend: RayBackend) -> np.ndarray:
+    """(F,) bool: no ray from just off either side of each face (F,) escapes the part."""
+    directions = _hemisphere(ESCAPE_DIRECTIONS)
+    diagonal = float(np.linalg.norm(np.ptp(part.vertices, axis=0)))
+    reach = 4.0 * diagonal + 1.0
+    centres = part.vertices[part.faces[faces]].mean(axis=1)
+    out = np.ones(len(faces), dtype=bool)
+    for k, (centre, normal) in enumerate(zip(centres, part.normals[faces], strict=True)):
+        if not normal.any():  # degenerate: no side to look from
+            out[k] = False
+            continue
+        for side in (normal, -normal):
+            rays = (_frame(side) @ directions.T).T.astype(np.float32)
+            hit, _ = backend.first_hits(centre + OFFSET_REL * diagonal * side, rays, reach)
+            if np.any(hit < 0):
+                out[k] = False
+                break
+    return out
+
+
+def _hemisphere(n: int) -> np.ndarray:
+    """(n, 3) unit directions spread evenly over the hemisphere z > 0 (Fibonacci)."""
+    k = np.arange(n) + 0.5
+    z = 1.0 - k / n
+    phi = k * math.pi * (3.0 - math.sqrt(5.0))
+    s = np.sqrt(1.0 - z * z)
+    return np.column_stack([s * np.cos(phi), s * np.sin(phi), z])
+
+
+def _frame(normal: np.ndarray) -> np.ndarray:
+    """(3, 3) rotation whose third column is the unit `normal`."""
+    helper = np.array([1.0, 0.0, 0.0]) if abs(normal[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    x = np.cross(helper, normal)
+    x /= np.linalg.norm(x)
+    return np.column_stack([x, np.cross(normal, x), normal])
+
+
+def _causes(
+    private: sp.csc_array,
+    rows: np.ndarray,
+    selected: np.ndarray,
+    areas: np.ndarray,
+    weak: np.ndarray,
+) -> list[ViewCause]:
+    """One ViewCause per selected view from its private rows (faces `rows[i]`)."""
+    out = []
+    for k, j in enumerate(selected):
+        faces = rows[private.indices[private.indptr[k] : private.indptr[k + 1]]]
+        w = weak[faces]
+        out.append(
+            ViewCause(
+                id=int(j),
+                private_faces=len(faces),
+                private_area_mm2=float(areas[faces].sum()),
+                weak_faces=int(w.sum()),
+                weak_area_mm2=float(areas[faces[w]].sum()),
+                driven=bool(len(faces) and w.all()),
+            )
+        )
+    return out
+
+
+def _group(mask: np.ndarray, areas: np.ndarray) -> FaceGroup:
+    """FaceGroup of the faces in `mask` (M,) bool."""
+    return FaceGroup(faces=int(mask.sum()), area_mm2=float(areas[mask].sum()))
+
+
+def _hint(driven: int, views: int, area: float, coverable: float) -> str | None:
+    """The CLI/document hint when sub-pixel, single-candidate or internal faces force views."""
+    if not driven or coverable <= 0:
+        return None
+    share = area / coverable
+    fraction = next((f for f in SUGGESTED_COVERAGE if 1.0 - f >= share), None)
+    if fraction is None:
+        return None
+    return (
+        f"{driven} of {views} viewpoints are there only for sub-pixel, single-candidate or "
+        f"internal faces ({area:.3g} mm², {share:.3%} of the coverable area); a partial cover "
+        f"(--min-coverage {fraction:g}, or target.min_coverage in the plan request) leaves "
+        "such faces out"
+    )

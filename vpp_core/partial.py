@@ -1,0 +1,262 @@
+"""Partial cover: the cheapest columns that satisfy rows holding a fraction f of the weight.
+
+    min c·x   s.t.  Σ_j A_ij x_j >= z_i   (every row i)
+                    Σ_i w_i z_i >= f Σ_i w_i
+                    x binary, z_i in {0, 1}
+
+A (M × N) in [0, 1] as in `vpp_core.cover`, w (M,) >= 0 (face areas, mm²). Row i counts as
+satisfied only when its whole demand is met (coverage >= 1 - COVER_TOL), so a row covered
+halfway by partial coefficients earns nothing. The model stays exact after:
+
+- identical rows merged, their weights added (they are satisfied together);
+- rows of zero weight dropped (they earn nothing and cost nothing);
+- dominated columns dropped (column k fully covers every row of j at no higher cost: swapping
+  j for k, or dropping j when k is in, never unsatisfies a row);
+- rows heavier than the weight that may be left out are forced (z_i = 1);
+- z_i continuous on rows whose coefficients are all 1: there any x makes A_i·x an integer, so
+  z_i > 0 only where the row is really satisfied.
+
+HiGHS solves it from a greedy start within the time limit; the status is "optimal" only when
+its dual bound meets the cover's cost. f = 1 is the strict cover (`solve_cover`).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import highspy
+import numpy as np
+import scipy.sparse as sp
+
+from vpp_core.cover import BUILD_TOL, COVER_TOL, SparseLike, as_costs, as_csr, coverage
+from vpp_core.errors import SolverError
+from vpp_core.lpbound import run_highs, silent_highs
+from vpp_core.reduce import row_groups, undominated_columns
+from vpp_core.setcover import CoverResult, closes_gap, solve_cover
+
+WEIGHT_RTOL = 1e-9
+"""Satisfied weight may fall short of f·W by this fraction of W (float summation)."""
+_HIGHS_FEASIBLE = 2  # HiGHS kSolutionStatusFeasible
+
+
+@dataclass(frozen=True)
+class PartialCover:
+    """A partial cover and what it satisfies."""
+
+    result: CoverResult  # selected columns, status, bound, over the original columns
+    satisfied: np.ndarray  # (M,) bool rows whose demand the selection meets
+    required: float  # f · Σ w
+    achieved: float  # Σ w over satisfied rows
+
+
+def satisfied_rows(A: sp.csr_array, selected: np.ndarray, tol: float = COVER_TOL) -> np.ndarray:
+    """(M,) bool: rows of A (M, N) whose coverage by the columns `selected` (K,) reaches 1 - tol."""
+    return coverage(A, selected) >= 1.0 - tol
+
+
+def solve_partial(
+    A: SparseLike,
+    weights: np.ndarray,
+    fraction: float,
+    costs: np.ndarray | None = None,
+    *,
+    method: str = "milp",
+    time_limit: float = 60.0,
+    mip_rel_gap: float = 0.0,
+    threads: int | None = None,
+) -> PartialCover:
+    """Cheapest columns of A (M, N) satisfying rows of weight (M,) >= fraction of the total."""
+    t0 = time.perf_counter()
+    csr, c = as_csr(A), as_costs(costs, A.shape[1])
+    w = np.asarray(weights, dtype=np.float64).reshape(-1)
+    if w.shape != (csr.shape[0],) or not np.all(np.isfinite(w)) or (w.size and w.min() < 0):
+        raise SolverError(f"weights must be ({csr.shape[0]},) finite and >= 0")
+    if not 0.0 < fraction <= 1.0:
+        raise SolverError(f"coverage fraction must lie in (0, 1], got {fraction}")
+    required = fraction * float(w.sum())
+    if required <= WEIGHT_RTOL * max(float(w.sum()), 1.0):
+        empty = CoverResult(np.zeros(0, np.int64), method, "optimal", 0.0, 0.0, 0.0, 0.0, 0, 0)
+        return _outcome(csr, w, empty, required)
+    if fraction == 1.0:
+        res = solve_cover(
+            csr, c, method=method, time_limit=time_limit, mip_rel_gap=mip_rel_gap, threads=threads
+        )
+        return _outcome(csr, w, res, required)
+    groups = _merged(csr, w, c)
+    start = greedy_partial(groups.A, c[groups.cols], groups.w, required)
+    if method == "greedy":
+        selected, status, bound, best_at = groups.cols[start], "heuristic", None, None
+    else:
+        selected, status, bound, best_at = _milp(
+            groups, c, start, required, t0 + time_limit, mip_rel_gap, threads
+        )
+    objective = float(c[selected].sum())
+    gap = None if bound is None else (0.0 if status == "optimal" else 1.0 - bound / objective)
+    elapsed = time.perf_counter() - t0
+    res = CoverResult(
+        np.sort(selected),
+        method,
+        status,
+        objective,
+        bound,
+        gap,
+        elapsed,
+        groups.A.shape[0],
+        groups.A.shape[1],
+        {"rows_before": csr.shape[0], "cols_before": csr.shape[1], **groups.sizes},
+        elapsed if best_at is None else best_at - t0,
+    )
+    return _outcome(csr, w, res, required)
+
+
+def _outcome(A: sp.csr_array, w: np.ndarray, res: CoverResult, required: float) -> PartialCover:
+    """Check the selection against A and the weight it must reach."""
+    ok = satisfied_rows(A, res.selected)
+    achieved = float(w[ok].sum())
+    if achieved < required - WEIGHT_RTOL * max(float(w.sum()), 1.0):  # a bug, never the input
+        raise SolverError(f"partial cover reaches weight {achieved:g} < required {required:g}")
+    return PartialCover(res, ok, required, achieved)
+
+
+@dataclass(frozen=True)
+class _Merged:
+    """The reduced model: distinct weighted rows, undominated columns."""
+
+    A: sp.csr_array  # (m, n)
+    w: np.ndarray  # (m,) summed weights
+    cols: np.ndarray  # (n,) original column of each column
+    sizes: dict[str, int]
+
+
+def _merged(A: sp.csr_array, w: np.ndarray, costs: np.ndarray) -> _Merged:
+    """Identical rows merged (weights summed), zero-weight rows and dominated columns dropped."""
+    rep = row_groups(A)
+    first = np.flatnonzero(rep == np.arange(A.shape[0]))
+    summed = np.bincount(np.searchsorted(first, rep), weights=w, minlength=len(first))
+    heavy = summed > 0
+    rows, summed = first[heavy], summed[heavy]
+    sub = sp.csr_array(A[rows])
+    cols = undominated_columns(sub, costs)
+    sub = sp.csr_array(sub[:, cols])
+    merged = len(w) - len(first)
+    sizes = {"rows_after": sub.shape[0], "cols_after": sub.shape[1], "merged_rows": merged}
+    return _Merged(sub, summed, cols.astype(np.int64), sizes)
+
+
+def greedy_partial(
+    A: sp.csr_array, costs: np.ndarray, w: np.ndarray, required: float
+) -> np.ndarray:
+    """(K,) int64 columns of A (M, N) picked greedily by weighted progress per cost, then pruned."""
+    csc = sp.csc_array(A)
+    rows, n = csc.indices, A.shape[1]
+    col_of = np.repeat(np.arange(n), np.diff(csc.indptr))
+    r = np.ones(A.shape[0])
+    picked: list[int] = []
+    slack = WEIGHT_RTOL * max(float(w.sum()), 1.0)
+    while float(w[r <= BUILD_TOL].sum()) < required - slack:
+        progress = np.minimum(r[rows], csc.data) * w[rows]
+        gain = np.bincount(col_of, weights=progress, minlength=n)
+        gain[picked] = -1.0
+        j = int(np.argmax(gain / costs))
+        if gain[j] <= 0.0:
+            raise SolverError("the required weight cannot be reached even with all columns")
+        seg = slice(csc.indptr[j], csc.indptr[j + 1])
+        r[rows[seg]] = np.maximum(r[rows[seg]] - csc.data[seg], 0.0)
+        picked.append(j)
+    return prune_partial(A, np.array(picked, dtype=np.int64), costs, w, required)
+
+
+def prune_partial(
+    A: sp.csr_array, sel: np.ndarray, costs: np.ndarray, w: np.ndarray, required: float
+) -> np.ndarray:
+    """(K',) sorted subset of `sel` (K,) still reaching `required` weight; none droppable alone."""
+    sel = np.unique(sel)
+    slack = WEIGHT_RTOL * max(float(w.sum()), 1.0)
+    for j in sel[np.argsort(-costs[sel], kind="stable")]:
+        rest = sel[sel != j]
+        if float(w[satisfied_rows(A, rest, BUILD_TOL)].sum()) >= required - slack:
+            sel = rest
+    return np.sort(sel)
+
+
+def _milp(
+    g: _Merged,
+    costs: np.ndarray,
+    start: np.ndarray,
+    required: float,
+    deadline: float,
+    mip_rel_gap: float,
+    threads: int | None,
+) -> tuple[np.ndarray, str, float | None, float | None]:
+    """HiGHS on the merged model from `start`: (original columns, status, bound, time found)."""
+    c = costs[g.cols]
+    h = silent_highs(
+        {
+            "time_limit": max(deadline - time.perf_counter(), 0.01),
+            "mip_rel_gap": float(mip_rel_gap),
+            "primal_feasibility_tolerance": 1e-9,
+            "mip_feasibility_tolerance": 1e-9,
+        },
+        threads,
+    )
+    h.passModel(_model(g, c, required))
+    warm = highspy.HighsSolution()
+    z = satisfied_rows(g.A, start, BUILD_TOL).astype(float)
+    x = np.zeros(g.A.shape[1])
+    x[start] = 1.0
+    warm.col_value = np.concatenate([x, z]).tolist()
+    warm.value_valid = True
+    run_highs(h, threads, lambda: h.setSolution(warm))
+    best, found = start, None
+    if h.getInfo().primal_solution_status == _HIGHS_FEASIBLE:
+        values = np.asarray(h.getSolution().col_value[: g.A.shape[1]])
+        mip = np.flatnonzero(values > 0.5)
+        slack = WEIGHT_RTOL * max(float(g.w.sum()), 1.0)
+        ok = float(g.w[satisfied_rows(g.A, mip, BUILD_TOL)].sum()) >= required - slack
+        if ok and c[mip].sum() < c[start].sum():
+            best, found = prune_partial(g.A, mip, c, g.w, required), time.perf_counter()
+    objective = float(c[best].sum())
+    integral = bool(np.all(c == np.floor(c)))
+    dual = float(h.getInfo().mip_dual_bound)
+    bound, closed = closes_gap(dual if np.isfinite(dual) else 0.0, objective, integral)
+    return g.cols[best], _status(h.getModelStatus(), closed), max(bound, 0.0), found
+
+
+def _status(model_status: highspy.HighsModelStatus, closed: bool) -> str:
+    """Truthful status: "optimal" only when the dual bound meets the cost."""
+    if closed:
+        return "optimal"
+    if model_status == highspy.HighsModelStatus.kTimeLimit:
+        return "time_limit"
+    return "gap_limit" if model_status == highspy.HighsModelStatus.kOptimal else "heuristic"
+
+
+def _model(g: _Merged, c: np.ndarray, required: float) -> highspy.HighsLp:
+    """HiGHS model over columns (x (n), z (m)) and rows (A x - z >= 0 (m), w·z/W >= f)."""
+    m, n = g.A.shape
+    total = float(g.w.sum())
+    csc = sp.csc_array(g.A)
+    x_part = sp.vstack([csc, sp.csr_array((1, n))])
+    z_part = sp.vstack([-sp.eye_array(m), sp.csr_array(g.w[None, :] / total)])
+    M = sp.csc_array(sp.hstack([x_part, z_part]))
+    lp = highspy.HighsLp()
+    lp.num_col_, lp.num_row_ = n + m, m + 1
+    lp.col_cost_ = np.concatenate([c, np.zeros(m)])
+    forced = g.w > total - required  # cannot be left out
+    lp.col_lower_ = np.concatenate([np.zeros(n), forced.astype(float)])
+    lp.col_upper_ = np.ones(n + m)
+    lp.row_lower_ = np.concatenate([np.zeros(m), [required / total]])
+    lp.row_upper_ = np.full(m + 1, highspy.kHighsInf)
+    lp.a_matrix_.format_ = highspy.MatrixFormat.kColwise
+    lp.a_matrix_.start_ = M.indptr.astype(np.int32)
+    lp.a_matrix_.index_ = M.indices.astype(np.int32)
+    lp.a_matrix_.value_ = M.data
+    fractional = (g.A.data < 1.0 - COVER_TOL).astype(np.float64)
+    short = sp.csr_array((fractional, g.A.indices, g.A.indptr), shape=g.A.shape)
+    binary_row = np.asarray(short.sum(axis=1)).ravel() == 0  # every coefficient is 1
+    kinds = [highspy.HighsVarType.kInteger] * n + [
+        highspy.HighsVarType.kContinuous if b else highspy.HighsVarType.kInteger for b in binary_row
+    ]
+    lp.integrality_ = kinds
+    return lp

@@ -14,27 +14,18 @@ import pytest
 
 from tests.conftest import MESHES, shared_dir
 from vpp_core.document import CandidateGenerator, PlanRequest, SolverSettings, Target
-from vpp_core.mesh import Part, load_mesh, part_from_arrays
+from vpp_core.mesh import Part, load_mesh
 
 MIN_COVERAGE = 0.999
 """The documented partial-cover setting (docs/cad-meshes.md)."""
 
 
-def isotropic_remesh(part: Part, edge_mm: float) -> Part:
-    """The same geometry remeshed with ~`edge_mm` edges, sharp features (> 30°) kept."""
-    pymeshlab = pytest.importorskip("pymeshlab")
-    ms = pymeshlab.MeshSet()
-    ms.add_mesh(pymeshlab.Mesh(part.vertices, part.faces))
-    ms.meshing_isotropic_explicit_remeshing(
-        iterations=10, targetlen=pymeshlab.PureValue(edge_mm), featuredeg=30
-    )
-    out = ms.current_mesh()
-    return part_from_arrays(out.vertex_matrix(), out.face_matrix())
-
-
 @pytest.fixture(scope="module")
 def two_tessellations() -> tuple[Part, Part]:
     data = (shared_dir(MESHES) / "hirth_sample_small.stl").read_bytes()
+    pytest.importorskip("pymeshlab")
+    from vpp_core.remesh import isotropic_remesh
+
     cad = load_mesh(data, "stl")
     iso = isotropic_remesh(cad, 1.0)
     assert iso.area_mm2 == pytest.approx(cad.area_mm2, rel=0.03)  # the same geometry

@@ -50,6 +50,18 @@ class PartialCover:
     achieved: float  # Σ w over satisfied rows
 
 
+def _slack(w: np.ndarray) -> float:
+    """Shortfall of satisfied weight tolerated for weights (M,): WEIGHT_RTOL of their total."""
+    return WEIGHT_RTOL * max(float(w.sum()), 1.0)
+
+
+def _reaches(
+    A: sp.csr_array, selected: np.ndarray, w: np.ndarray, required: float, tol: float = BUILD_TOL
+) -> bool:
+    """The columns `selected` (K,) satisfy rows of A (M, N) of weight (M,) >= required."""
+    return float(w[satisfied_rows(A, selected, tol)].sum()) >= required - _slack(w)
+
+
 def satisfied_rows(A: sp.csr_array, selected: np.ndarray, tol: float = COVER_TOL) -> np.ndarray:
     """(M,) bool: rows of A (M, N) whose coverage by the columns `selected` (K,) reaches 1 - tol."""
     return coverage(A, selected) >= 1.0 - tol
@@ -75,7 +87,7 @@ def solve_partial(
     if not 0.0 < fraction <= 1.0:
         raise SolverError(f"coverage fraction must lie in (0, 1], got {fraction}")
     required = fraction * float(w.sum())
-    if required <= WEIGHT_RTOL * max(float(w.sum()), 1.0):
+    if required <= _slack(w):
         empty = CoverResult(np.zeros(0, np.int64), method, "optimal", 0.0, 0.0, 0.0, 0.0, 0, 0)
         return _outcome(csr, w, empty, required)
     if fraction == 1.0:
@@ -114,7 +126,7 @@ def _outcome(A: sp.csr_array, w: np.ndarray, res: CoverResult, required: float) 
     """Check the selection against A and the weight it must reach."""
     ok = satisfied_rows(A, res.selected)
     achieved = float(w[ok].sum())
-    if achieved < required - WEIGHT_RTOL * max(float(w.sum()), 1.0):  # a bug, never the input
+    if achieved < required - _slack(w):  # a bug, never the input
         raise SolverError(f"partial cover reaches weight {achieved:g} < required {required:g}")
     return PartialCover(res, ok, required, achieved)
 
@@ -153,8 +165,8 @@ def greedy_partial(
     col_of = np.repeat(np.arange(n), np.diff(csc.indptr))
     r = np.ones(A.shape[0])
     picked: list[int] = []
-    slack = WEIGHT_RTOL * max(float(w.sum()), 1.0)
-    while float(w[r <= BUILD_TOL].sum()) < required - slack:
+    enough = required - _slack(w)
+    while float(w[r <= BUILD_TOL].sum()) < enough:
         progress = np.minimum(r[rows], csc.data) * w[rows]
         gain = np.bincount(col_of, weights=progress, minlength=n)
         gain[picked] = -1.0
@@ -172,10 +184,9 @@ def prune_partial(
 ) -> np.ndarray:
     """(K',) sorted subset of `sel` (K,) still reaching `required` weight; none droppable alone."""
     sel = np.unique(sel)
-    slack = WEIGHT_RTOL * max(float(w.sum()), 1.0)
     for j in sel[np.argsort(-costs[sel], kind="stable")]:
         rest = sel[sel != j]
-        if float(w[satisfied_rows(A, rest, BUILD_TOL)].sum()) >= required - slack:
+        if _reaches(A, rest, w, required):
             sel = rest
     return np.sort(sel)
 
@@ -212,9 +223,7 @@ def _milp(
     if h.getInfo().primal_solution_status == _HIGHS_FEASIBLE:
         values = np.asarray(h.getSolution().col_value[: g.A.shape[1]])
         mip = np.flatnonzero(values > 0.5)
-        slack = WEIGHT_RTOL * max(float(g.w.sum()), 1.0)
-        ok = float(g.w[satisfied_rows(g.A, mip, BUILD_TOL)].sum()) >= required - slack
-        if ok and c[mip].sum() < c[start].sum():
+        if _reaches(g.A, mip, g.w, required) and c[mip].sum() < c[start].sum():
             best, found = prune_partial(g.A, mip, c, g.w, required), time.perf_counter()
     objective = float(c[best].sum())
     integral = bool(np.all(c == np.floor(c)))

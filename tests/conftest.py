@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import csv
 import os
 from collections.abc import Iterator
 from pathlib import Path
@@ -16,6 +17,17 @@ ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared"
 MESHES = SHARED / "meshes"
 ORLIB = SHARED / "data" / "orlib-scp"
+
+MANIFEST_UNITS = {"mm": "mm", "mm?": "mm", "unknown": "mm", "m": "m", "inch": "in", "inch?": "in"}
+"""MANIFEST.csv units_guess -> our unit names (its *_mm2 columns were converted with these)."""
+
+
+def manifest_rows() -> list[dict[str, str]]:
+    """The rows of the shared meshes' MANIFEST.csv (none when the folder is absent)."""
+    if not MESHES.is_dir():
+        return []
+    with open(MESHES / "MANIFEST.csv", newline="") as fh:
+        return list(csv.DictReader(fh))
 
 
 def shared_dir(path: Path) -> Path:

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import csv
 from pathlib import Path
 from typing import Any
 
@@ -10,6 +9,7 @@ import numpy as np
 import pytest
 import trimesh
 
+from tests.conftest import MANIFEST_UNITS, manifest_rows
 from vpp_core.errors import LimitError, MeshError
 from vpp_core.mesh import FORMATS, UNITS_TO_MM, Part, load_mesh, mesh_id, part_from_arrays
 
@@ -18,9 +18,6 @@ BAD = MESHES / "bad"
 needs_meshes = pytest.mark.skipif(
     not MESHES.is_dir(), reason=f"shared test meshes not found at {MESHES}"
 )
-
-# MANIFEST units_guess -> our unit names (its *_mm2 columns were converted with these)
-MANIFEST_UNITS = {"mm": "mm", "mm?": "mm", "unknown": "mm", "m": "m", "inch": "in", "inch?": "in"}
 
 
 def read(path: Path) -> bytes:
@@ -42,13 +39,6 @@ def plate_holes_raw() -> trimesh.Trimesh:
     mesh = trimesh.load(MESHES / "plate_holes.STL", process=False)
     assert isinstance(mesh, trimesh.Trimesh)
     return mesh
-
-
-def manifest_rows() -> list[dict[str, str]]:
-    if not MESHES.is_dir():
-        return []
-    with open(MESHES / "MANIFEST.csv", newline="") as fh:
-        return list(csv.DictReader(fh))
 
 
 def box_arrays() -> tuple[np.ndarray, np.ndarray]:

@@ -17,6 +17,13 @@ from vpp_core.sensor import Sensor
 PAPER = Sensor()
 
 
+@pytest.fixture(autouse=True, params=["raster", "embree"])
+def backend(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> str:
+    """Every physics check runs with each ray backend as the default."""
+    monkeypatch.setattr("vpp_core.raytrace.DEFAULT_BACKEND", request.param)
+    return str(request.param)
+
+
 def counts(*args, **kw):
     """R of a trace (M, N) int32."""
     return trace_counts(*args, **kw).counts

@@ -22,7 +22,8 @@ from scipy.spatial import cKDTree
 from vpp_core.errors import VppError
 from vpp_core.mesh import Part
 from vpp_core.pose import Viewpoints, make_viewpoints
-from vpp_core.raytrace import RayBackend, make_backend
+from vpp_core.rays import RayBackend
+from vpp_core.raytrace import make_backend
 from vpp_core.sensor import Sensor
 
 OVERSAMPLE = 8

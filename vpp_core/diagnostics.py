@@ -22,7 +22,7 @@ from pydantic import BaseModel
 
 from vpp_core.cover import COVER_TOL, coverage
 from vpp_core.mesh import Part
-from vpp_core.raytrace import RayBackend
+from vpp_core.rays import RayBackend
 from vpp_core.sensor import Sensor
 
 ESCAPE_DIRECTIONS = 64

@@ -35,7 +35,8 @@ from vpp_core.mesh import Part
 from vpp_core.metrics import evaluate
 from vpp_core.partial import PartialCover, solve_partial
 from vpp_core.pose import Viewpoints, make_viewpoints
-from vpp_core.raytrace import RayBackend, Trace, make_backend, trace_counts
+from vpp_core.rays import RayBackend
+from vpp_core.raytrace import Trace, make_backend, trace_counts
 from vpp_core.tour import path_length, visiting_order
 
 Progress = Callable[[str, int, int], None]

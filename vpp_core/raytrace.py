@@ -1,80 +1,48 @@
-"""Ray tracing: one ray per pixel centre, first hit, SPEC §3 validity, the ray-count matrix R.
+"""The ray-count matrix R: every view's pixel rays traced by a ray backend, counted per face.
 
-A ray is valid on face i when i is its first hit, the hit depth lies in [near, far] and
-the angle between ray and face normal is at most `max_incidence` (|cos|, so orientation
-does not matter). Rays are built with z = 1 in the camera frame, so the hit parameter t
-is the depth; tracing stops at t = far, which is exact (a first hit beyond far is invalid
-whatever lies behind it).
+Only the pixels inside the image of the part's hull are traced (the rest cannot hit); each
+view is split into blocks of rows as its backend likes them (`vpp_core.rays`), the blocks run
+on a thread pool, and a view's column of R is reduced as soon as its last block is in.
 """
 
 from __future__ import annotations
 
-import math
 import os
 import time
 from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
-from typing import Protocol
 
 import numpy as np
 import scipy.sparse as sp
 
+from vpp_core.embree import EmbreeBackend
 from vpp_core.errors import VppError
 from vpp_core.mesh import Part
 from vpp_core.pose import Viewpoints
+from vpp_core.raster import RasterBackend
+from vpp_core.rays import Block, Hits, RayBackend
 from vpp_core.sensor import Sensor
-
-CHUNK_RAYS = 1 << 18
-"""Rays per task: small enough for cache and memory, big enough to amortise Python."""
 
 Progress = Callable[[int], None]
 """Called with the number of viewpoints just finished."""
 
 
-class RayBackend(Protocol):
-    """First-hit ray caster over one mesh."""
+BACKENDS = ("raster", "embree")
+"""Ray backends by name; the first is the default (fastest, see bench/raytrace.py)."""
 
-    name: str
-
-    def first_hits(
-        self, origin: np.ndarray, directions: np.ndarray, t_max: float
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Face id (n,) int32 (-1 = miss) and hit parameter t (n,) float32 of rays from origin."""
-        ...
+DEFAULT_BACKEND = BACKENDS[0]
 
 
-class EmbreeBackend:
-    """Embree 4 (embreex) single-ray intersection, robust (watertight) scene."""
-
-    name = "embree"
-
-    def __init__(self, vertices: np.ndarray, faces: np.ndarray, robust: bool = True) -> None:
-        from embreex import rtcore_scene
-        from embreex.mesh_construction import TriangleMesh
-
-        self._scene = rtcore_scene.EmbreeScene(robust=robust)
-        TriangleMesh(self._scene, vertices.astype(np.float32), faces.astype(np.int32))
-
-    def first_hits(
-        self, origin: np.ndarray, directions: np.ndarray, t_max: float
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Face id (n,) int32 (-1 = miss) and hit parameter t (n,) float32; releases the GIL."""
-        origins = np.broadcast_to(origin.astype(np.float32), directions.shape)
-        out = self._scene.run(origins, directions, dists=float(t_max), output=1)
-        return out["primID"], out["tfar"]
-
-
-DEFAULT_BACKEND = "embree"
-"""The backend every plan uses today (the only one)."""
-
-
-def make_backend(part: Part, name: str = DEFAULT_BACKEND) -> RayBackend:
-    """The ray backend called `name`, built over the part's mesh."""
-    if name != "embree":
-        raise VppError(f"unknown ray backend {name!r}; available: embree")
-    return EmbreeBackend(part.vertices, part.faces)
+def make_backend(part: Part, name: str | None = None) -> RayBackend:
+    """The ray backend called `name` (default DEFAULT_BACKEND), built over the part's mesh."""
+    name = name or DEFAULT_BACKEND
+    if name == "embree":
+        return EmbreeBackend(part)
+    if name == "raster":
+        return RasterBackend(part)
+    raise VppError(f"unknown ray backend {name!r}; available: {', '.join(BACKENDS)}")
 
 
 @dataclass(frozen=True)
@@ -125,33 +93,20 @@ def trace_counts(
     start = time.perf_counter()
     backend = backend or make_backend(part)
     rotations = views.rotations()
-    cos_min = math.cos(math.radians(sensor.max_incidence_deg))
     hull = _hull_points(part.vertices) if cull else None
     windows = [_window(sensor, views.positions[j], rotations[j], hull) for j in range(len(views))]
-    tasks = [c for j, w in enumerate(windows) for c in _chunks(j, *w)]
+    tasks = [c for j, w in enumerate(windows) for c in _chunks(j, *w, backend.block_rays)]
     empty = (np.empty(0, np.int32), np.empty(0, np.int32))
     columns: list[tuple[np.ndarray, np.ndarray]] = [empty] * len(views)
-    pending: dict[int, list[np.ndarray]] = {}
+    pending: dict[int, list[Hits]] = {}
     left = np.bincount([c.view for c in tasks], minlength=len(views))
     if progress and (done := int((left == 0).sum())):
         progress(done)
 
-    normals = np.ascontiguousarray(part.normals, dtype=np.float32)
-    representative = part.representative.astype(np.int32)
-    rotations32 = rotations.astype(np.float32)
-
-    def work(chunk: _Chunk) -> np.ndarray:
+    def work(chunk: _Chunk) -> Hits:
         j = chunk.view
-        return _valid_faces(
-            sensor,
-            backend,
-            views.positions[j],
-            rotations32[j],
-            chunk,
-            cos_min,
-            normals,
-            representative,
-        )
+        block = Block(sensor, views.positions[j], rotations[j], chunk.rows, chunk.cols)
+        return backend.valid_hits(block)
 
     workers = threads or _cpu_count()
     with ThreadPoolExecutor(workers) as pool:
@@ -159,7 +114,7 @@ def trace_counts(
             pending.setdefault(chunk.view, []).append(hits)
             left[chunk.view] -= 1
             if left[chunk.view] == 0:  # reduce at once: memory grows with nnz(R), not rays
-                columns[chunk.view] = _column(np.concatenate(pending.pop(chunk.view)), part.n_faces)
+                columns[chunk.view] = _column(pending.pop(chunk.view), part.representative)
                 if progress:
                     progress(1)
     counts = _assemble(columns, part.n_faces)
@@ -210,46 +165,14 @@ def _window(
     return int(v0), int(v1), int(u0), int(u1)
 
 
-def _valid_faces(
-    sensor: Sensor,
-    backend: RayBackend,
-    position: np.ndarray,
-    rotation: np.ndarray,
-    chunk: _Chunk,
-    cos_min: float,
-    normals: np.ndarray,
-    representative: np.ndarray,
-) -> np.ndarray:
-    """Face ids (h,) int32 of the valid hits of one chunk of one view's pixel rays.
-
-    `rotation` (3, 3) float32; `normals` (M, 3) float32 and `representative` (M,) int32 are
-    the part's, converted once per trace. No BLAS here: a float32 matmul from a worker thread
-    wakes OpenBLAS's own thread pool, whose spinning threads fight the tracer for the cores.
-    """
-    (v0, v1), (u0, u1) = chunk.rows, chunk.cols
-    xs, ys = sensor.pixel_x[u0:u1], sensor.pixel_y[v0:v1]
-    # world direction of camera ray (x, y, 1): x*X + y*Y + Z, built plane by plane
-    out = np.empty((v1 - v0, u1 - u0, 3), dtype=np.float32)
-    for k in range(3):
-        np.add(
-            (ys * rotation[k, 1] + rotation[k, 2])[:, None],
-            (xs * rotation[k, 0])[None, :],
-            out=out[..., k],
-        )
-    directions = out.reshape(-1, 3)
-    norms = sensor.camera_ray_norms[v0:v1, u0:u1]
-    prim, depth = backend.first_hits(position, directions, sensor.far_mm)
-    hit = np.flatnonzero(prim >= 0)
-    prim, depth = prim[hit], depth[hit]
-    # take(axis=0) is several times faster than fancy indexing of (n, 3) rows
-    cos = np.einsum("ij,ij->i", normals.take(prim, axis=0), directions.take(hit, axis=0))
-    ok = (depth >= sensor.near_mm) & (np.abs(cos, out=cos) >= cos_min * norms.reshape(-1)[hit])
-    return np.asarray(representative.take(prim[ok]))
-
-
-def _column(faces: np.ndarray, n_faces: int) -> tuple[np.ndarray, np.ndarray]:
-    """One view's (faces hit, valid-ray counts), both (k,) int32, from its valid face ids."""
-    counts = np.bincount(faces, minlength=n_faces)
+def _column(hits: list[Hits], representative: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """One view's (faces hit, valid-ray counts), both (k,) int32, from its blocks' hits;
+    duplicate faces counted on their representative."""
+    faces = representative.take(np.concatenate([f for f, _ in hits]))
+    weights = None
+    if any(c is not None for _, c in hits):
+        weights = np.concatenate([np.ones(len(f)) if c is None else c for f, c in hits])
+    counts = np.bincount(faces, weights, minlength=len(representative))
     nz = np.flatnonzero(counts)
     return nz.astype(np.int32), counts[nz].astype(np.int32)
 
@@ -263,18 +186,18 @@ def _assemble(columns: list[tuple[np.ndarray, np.ndarray]], n_faces: int) -> sp.
     return sp.csc_array((data, indices, indptr), shape=(n_faces, len(columns)))
 
 
-def _chunks(view: int, v0: int, v1: int, u0: int, u1: int) -> Iterator[_Chunk]:
-    """One view's pixel window split into runs of whole rows of about CHUNK_RAYS rays."""
-    rows = max(1, CHUNK_RAYS // max(u1 - u0, 1))
+def _chunks(view: int, v0: int, v1: int, u0: int, u1: int, size: int) -> Iterator[_Chunk]:
+    """One view's pixel window split into runs of whole rows of about `size` rays."""
+    rows = max(1, size // max(u1 - u0, 1))
     for start in range(v0, v1, rows):
         yield _Chunk(view, (start, min(start + rows, v1)), (u0, u1))
 
 
 def _bounded_map(
-    pool: ThreadPoolExecutor, fn: Callable[[_Chunk], np.ndarray], items: list[_Chunk], window: int
-) -> Iterator[np.ndarray]:
+    pool: ThreadPoolExecutor, fn: Callable[[_Chunk], Hits], items: list[_Chunk], window: int
+) -> Iterator[Hits]:
     """pool.map in order, with at most `window` tasks in flight (bounded memory)."""
-    futures: deque[Future[np.ndarray]] = deque()
+    futures: deque[Future[Hits]] = deque()
     for item in items:
         futures.append(pool.submit(fn, item))
         if len(futures) >= window:

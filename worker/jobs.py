@@ -24,7 +24,8 @@ from vpp_core.errors import VppError
 from vpp_core.mesh import Part
 from vpp_core.plan import candidates_for, check_limits, finish
 from vpp_core.pose import Viewpoints
-from vpp_core.raytrace import RayBackend, Trace, join_traces, make_backend, trace_counts
+from vpp_core.rays import RayBackend
+from vpp_core.raytrace import Trace, join_traces, make_backend, trace_counts
 from vpp_core.sensor import Sensor
 from worker import artifacts as art
 from worker.settings import Settings, get_settings

@@ -20,6 +20,7 @@ from vpp_core.document import CandidateGenerator, PlanDocument, PlanRequest, Sol
 from vpp_core.errors import VppError
 from vpp_core.mesh import UNITS_TO_MM, load_mesh
 from vpp_core.plan import plan
+from vpp_core.raytrace import BACKENDS, DEFAULT_BACKEND
 from vpp_core.samples import sample_stl
 from vpp_core.sensor import make_sensor
 from worker.settings import get_settings
@@ -72,6 +73,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--gap", type=float, default=0.0, help="relative MIP gap accepted")
     p.add_argument("--seed", type=int, default=0, help="candidate generator seed")
     p.add_argument("--threads", type=_positive_int, help="threads (default: all cores)")
+    p.add_argument(
+        "--backend",
+        default=DEFAULT_BACKEND,
+        choices=BACKENDS,
+        help=f"ray backend for R (default {DEFAULT_BACKEND}: the fastest)",
+    )
     p.add_argument("-o", "--output", type=Path, help="write the plan document (JSON) here")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
     p.set_defaults(run=run_plan)
@@ -174,6 +181,7 @@ def _request(args: argparse.Namespace) -> PlanRequest:
             solver=SolverSettings(
                 name=args.solver, time_limit_s=args.time_limit, mip_rel_gap=args.gap
             ),
+            backend=args.backend,
         )
     except ValidationError as exc:
         err = exc.errors()[0]
@@ -279,7 +287,7 @@ def summary(doc: PlanDocument) -> Table:
         (
             "rays",
             f"{doc.rays.pixels:.3g} pixels, {doc.rays.cast:.3g} cast "
-            f"at {doc.rays.cast_per_s / 1e6:.1f} Mrays/s",
+            f"at {doc.rays.cast_per_s / 1e6:.1f} Mrays/s ({doc.rays.backend})",
         ),
         ("time per stage, s", " ".join(f"{k} {v:.2f}" for k, v in t.model_dump().items())),
     ]

@@ -11,6 +11,8 @@ from tests.conftest import MANIFEST_UNITS, MESHES, manifest_rows, plate_part, sh
 from vpp_core.candidates import GeneratorSettings, generate
 from vpp_core.embree import EmbreeBackend, block_directions
 from vpp_core.mesh import Part, load_mesh, part_from_arrays
+from vpp_core.document import CandidateGenerator, PlanRequest
+from vpp_core.plan import plan
 from vpp_core.pose import Viewpoints, make_viewpoints
 from vpp_core.raster import view_first_hits
 from vpp_core.rays import Block
@@ -196,3 +198,21 @@ def test_unknown_backend_is_refused() -> None:
 
     with pytest.raises(VppError, match="unknown ray backend 'optix'; available: raster, embree"):
         make_backend(plate_part(), "optix")
+
+
+def test_plans_from_both_backends_agree() -> None:
+    path = shared_dir(MESHES) / "hirth_sample_small.stl"
+    part = load_mesh(path.read_bytes(), "stl")
+    docs = {
+        name: plan(part, PlanRequest(candidates=CandidateGenerator(count=80), backend=name))
+        for name in ("raster", "embree")
+    }
+    assert [d.rays.backend for d in docs.values()] == ["raster", "embree"]
+    raster, embree = docs["raster"], docs["embree"]
+    assert raster.viewpoints == embree.viewpoints
+    assert raster.rays.cast == embree.rays.cast
+    assert abs(raster.rays.valid - embree.rays.valid) <= 1e-4 * embree.rays.valid
+    assert raster.metrics.coverage == embree.metrics.coverage
+    assert raster.metrics.resolution.met_area == pytest.approx(
+        embree.metrics.resolution.met_area, abs=1e-3
+    )

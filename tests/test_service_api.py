@@ -92,6 +92,7 @@ def test_plan_request_validation_is_422_with_errors(api) -> None:
         {"mesh_id": mesh, "target": {"resolution_mm": -1}},
         {"mesh_id": mesh, "candidates": {"count": 0}},
         {"mesh_id": mesh, "solver": {"name": "magic"}},
+        {"mesh_id": mesh, "backend": "optix"},
         {"mesh_id": mesh, "surprise": 1},
         {"mesh_id": "not-a-hash"},
     ]

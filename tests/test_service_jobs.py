@@ -87,6 +87,12 @@ def test_identical_request_is_answered_from_the_store_and_new_target_reuses_r(
     assert doc["target"]["resolution_mm"] == 0.05
     r = api.get(second["result_url"], headers={"If-None-Match": f'"{other}"'})
     assert r.status_code == 304
+    # another ray backend is another R (traced anew), and the same plan
+    embree = wait(api, submit(api, {**body, "backend": "embree"}))
+    assert embree["status"] == "succeeded" and embree["chunks"] != []
+    docs = [api.get(s["result_url"]).json() for s in (first, embree)]
+    assert [d["rays"]["backend"] for d in docs] == ["raster", "embree"]
+    assert docs[0]["viewpoints"] == docs[1]["viewpoints"]
 
 
 def test_cancel_stops_a_running_job_and_a_resubmission_resumes(

@@ -8,6 +8,7 @@ from pydantic import BaseModel, BeforeValidator, ConfigDict, Field
 
 from vpp_core.diagnostics import Diagnostics
 from vpp_core.metrics import Metrics
+from vpp_core.rays import BackendName
 from vpp_core.sensor import Sensor
 
 Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
@@ -78,6 +79,12 @@ class PlanRequest(_Strict):
     target: Target = Target()
     candidates: Candidates = Field(default_factory=CandidateGenerator)
     solver: SolverSettings = SolverSettings()
+    backend: BackendName = Field(
+        "raster",
+        description="ray backend that computes R: `raster` (z-buffer of face ids at pixel "
+        "centres, the fastest) or `embree` (one Embree ray per pixel); they agree but for "
+        "pixel centres on triangle edges",
+    )
 
 
 class MeshInfo(BaseModel):
@@ -168,7 +175,7 @@ class Timings(BaseModel):
 class RaysInfo(BaseModel):
     """Ray tracing figures: pixel rays of all candidates, rays actually cast, valid hits."""
 
-    backend: str
+    backend: BackendName
     per_view: int
     pixels: int
     cast: int

@@ -154,7 +154,7 @@ def plan(
     """Plan the fewest viewpoints covering `part` as `request` asks (the whole pipeline)."""
     clock = _Clock(progress)
     clock.timings.load = round(load_s, 4)
-    backend = backend or make_backend(part)
+    backend = backend or make_backend(part, request.backend)
     check_request(request, limits)
     with clock.stage("candidates"):
         views, info = candidates_for(part, request, backend)

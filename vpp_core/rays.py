@@ -9,11 +9,14 @@ parameter t is the depth.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Literal, Protocol
 
 import numpy as np
 
 from vpp_core.sensor import Sensor
+
+BackendName = Literal["raster", "embree"]
+"""The ray backends (vpp_core.raytrace.make_backend); the first is the default."""
 
 
 @dataclass(frozen=True)

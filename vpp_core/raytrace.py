@@ -13,6 +13,7 @@ from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
+from typing import get_args
 
 import numpy as np
 import scipy.sparse as sp
@@ -22,17 +23,17 @@ from vpp_core.errors import VppError
 from vpp_core.mesh import Part
 from vpp_core.pose import Viewpoints
 from vpp_core.raster import RasterBackend
-from vpp_core.rays import Block, Hits, RayBackend
+from vpp_core.rays import BackendName, Block, Hits, RayBackend
 from vpp_core.sensor import Sensor
 
 Progress = Callable[[int], None]
 """Called with the number of viewpoints just finished."""
 
 
-BACKENDS = ("raster", "embree")
-"""Ray backends by name; the first is the default (fastest, see bench/raytrace.py)."""
+BACKENDS: tuple[BackendName, ...] = get_args(BackendName)
+"""Ray backends by name; the first is the default (the fastest, see bench/raytrace.py)."""
 
-DEFAULT_BACKEND = BACKENDS[0]
+DEFAULT_BACKEND: BackendName = BACKENDS[0]
 
 
 def make_backend(part: Part, name: str | None = None) -> RayBackend:

@@ -26,12 +26,9 @@ import scipy.sparse as sp
 from vpp_core.document import CandidateInfo, PlanDocument, PlanRequest
 from vpp_core.mesh import Part
 from vpp_core.pose import Viewpoints
-from vpp_core.raytrace import DEFAULT_BACKEND, Trace
+from vpp_core.raytrace import Trace
 from vpp_core.sensor import Sensor
 from worker.store import Store
-
-BACKEND = DEFAULT_BACKEND
-"""The ray backend whose R is stored; part of the trace id."""
 
 
 def digest(obj: Any) -> str:
@@ -49,8 +46,8 @@ def plan_id(mesh_id: str, request: PlanRequest) -> str:
 
 def trace_id(mesh_id: str, request: PlanRequest) -> str:
     """Content id of R: mesh, sensor, candidates and backend (not target or solver)."""
-    dump = request.model_dump(mode="json", include={"sensor", "candidates"})
-    return digest({"kind": "trace/1", "mesh_id": mesh_id, "backend": BACKEND, **dump})
+    dump = request.model_dump(mode="json", include={"sensor", "candidates", "backend"})
+    return digest({"kind": "trace/1", "mesh_id": mesh_id, **dump})
 
 
 def mesh_key(mesh_id: str) -> str:

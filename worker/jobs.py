@@ -126,7 +126,7 @@ def _trace(
         lock = TraceLock(ctx.job.connection, trace_id, ctx.job.id, ctx.settings.plan_timeout_s)
         with lock.hold(lambda: ctx.store.exists(art.counts_key(trace_id)), ctx.meta.update):
             if not ctx.store.exists(art.counts_key(trace_id)):
-                backend = make_backend(part)
+                backend = make_backend(part, request.backend)
                 start = time.perf_counter()
                 views, info = _candidates(ctx, part, request, trace_id, backend)
                 timings.candidates = round(time.perf_counter() - start, 4)

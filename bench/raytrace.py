@@ -1,54 +1,52 @@
-"""Benchmark the ray tracer against bare Embree on the same rays; one JSON line per measurement.
+"""Ray tracing speed: the C++ Embree packet ceiling, bare embreex and every project backend.
 
-    python bench/raytrace.py [--meshes MESH...] [--views 8] [--threads 1,2]
-                             [--synthetic-faces 1000000] [--distance 500] [--repeat 1]
-                             [--malloc fixed|default] [--wait-idle S]
+    python bench/raytrace.py [--faces 10000,100000,1000000] [--sizes large,small]
+                             [--meshes MESH...] [--views 8] [--threads 1,2] [--repeat 3]
+                             [--backends raster,embree] [--no-ceiling] [--wait-idle S]
 
-Every mesh is seen by `--views` cameras of the paper's sensor (1920 x 1200 px) placed
-`--distance` mm from the centre of its bounding box, along directions spread evenly on a
-sphere (Fibonacci lattice), looking at the centre. For each mesh and thread count T:
+Scenes: a sphere of about each `--faces` count (trimesh UV sphere) in two sizes, `large`
+(radius 195 mm: its silhouette covers the whole frame, 100 % of pixels hit) and `small`
+(radius 38 mm: about 6 % of pixels), and every `--meshes` file (units from the MANIFEST.csv
+beside it). Each is seen by `--views` cameras of the paper's sensor (1920 x 1200 px) placed
+500 mm from its centre along directions spread evenly on a sphere, looking at it.
 
-- `bare`: `EmbreeScene.run(origins, directions, dists=far, output=1)` on each view's
-  world-space float32 ray directions (exactly those `trace_counts` builds), in chunks of
-  whole image rows (~`CHUNK_RAYS` rays, as `trace_counts` splits them) over a T-thread pool,
-  no post-processing: the reference rate. The scene is built as `EmbreeBackend` builds it
-  (robust); the directions and origins are made before the clock starts.
-- `bare_primid`: the same with plain `run(origins, directions)` (primID only, no far limit),
-  for information.
-- `full`: `trace_counts(..., threads=T, cull=False)` (all pixels, post-processing and
-  sparse assembly included); rays/s = views x pixels / wall.
-- `cull`: `trace_counts(..., threads=T, cull=True)` (pixels inside the projected hull only);
-  pixel rays/s = views x pixels / wall, cast rays/s = rays_cast / wall.
+Every method traces the same rays: one per pixel centre of each view's window (the pixels
+inside the image of the part's hull, as `trace_counts` culls them); a rate is those rays
+over the wall time (Mrays/s), and `px/s` counts whole frames (views x 2.3 Mpx / wall).
 
-The scene is built once per mesh (its build time is reported on the `mesh` line, not in any
-rate) and shared by all measurements; each measurement is warmed up once on one view, then
-timed `--repeat` times (the fastest run is reported). The `mesh` line also gives the hit
-fraction and the depth range of first hits over all views (from an untimed pass), which
-shows whether the part lies in the depth of field. `--synthetic-faces N` adds an icosphere
-of radius 150 mm (subdivision level chosen so its face count is nearest N on a log scale;
-0 = none); seen from 500 mm its visible surface lies at depths 350-455 mm, inside the
-300-700 mm depth of field.
+- `ceiling`: bench/ceiling.cpp, Embree from C++ (`rtcIntersect16`, coherent flag, 4x4 pixel
+  tiles, T std::threads), first hits only. Compiled here with g++ against Embree 4 headers
+  if found, else Embree 3 (Debian: `apt install libembree-dev`); skipped with a message when
+  neither is installed.
+- `bare`: embreex `EmbreeScene.run(origins, directions, dists=far, output=1)` on each view's
+  window rays in chunks of whole rows (~CHUNK_RAYS) over a T-thread pool, first hits only.
+- one row per project backend: `trace_counts(..., backend=B, threads=T)`: R complete,
+  post-processing (depth of field, incidence, per-face counts, sparse assembly) included.
 
-Each `measure` line also has `own_cores` (this process's CPU seconds / wall: a 1-thread
-run above 1 means helper threads, e.g. OpenBLAS's, are spinning), `others_cores` (other
-processes' use of the machine meanwhile: above ~0.2 the numbers are disturbed; `--wait-idle S`
-waits up to S s for quiet before each measurement) and `page_faults`. By default glibc's
-malloc thresholds are pinned first (`--malloc fixed`, see `fix_malloc`), which makes the
-rates repeatable. A summary table goes to stderr at the end (stdout stays JSON lines).
+The scene of each method is built once per part (not timed); each measurement is warmed up
+on one view, then timed `--repeat` times (the fastest is kept). One JSON line per
+measurement goes to stdout; a summary table with the ratio of each backend to the ceiling and
+to bare embreex goes to stderr. `others` in the table is the most cores other processes used
+during the row's timings (above ~0.2 the rates are disturbed).
 """
 
 from __future__ import annotations
 
 import argparse
+import csv
+import hashlib
 import json
 import math
 import os
+import shutil
+import struct
+import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -57,40 +55,20 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from vpp_core.embree import CHUNK_RAYS, EmbreeBackend, block_directions  # noqa: E402
 from vpp_core.mesh import Part, load_mesh, part_from_arrays  # noqa: E402
 from vpp_core.pose import Viewpoints, make_viewpoints  # noqa: E402
-from vpp_core.raytrace import CHUNK_RAYS, EmbreeBackend, _hull_points, trace_counts  # noqa: E402
+from vpp_core.rays import Block  # noqa: E402
+from vpp_core.raytrace import BACKENDS, _hull_points, _window, make_backend, trace_counts  # noqa: E402
 from vpp_core.sensor import Sensor  # noqa: E402
 
 MESH_DIR = ROOT.parent / "shared" / "meshes"
-DEFAULT_MESHES = ["1002_tray_bottom.STL", "counter.unitsmm.STL", "turbineblade.ply"]
-UNITS = {  # shared meshes not in mm (see ../shared/meshes/README.md)
-    "ADIS16480.STL": "m",
-    "abc_00000006_pipe_fitting.stl": "m",
-    "featuretype.STL": "in",
-    "42400-IDGH_exhaust_manifold.stl": "in",
-}
-SPHERE_RADIUS_MM = 150.0
-
-
-@dataclass
-class Row:
-    """One (mesh, threads) line of the summary table."""
-
-    mesh: str
-    faces: int
-    threads: int
-    build_s: float
-    hit_fraction: float
-    rates: dict[str, float] = field(default_factory=dict)  # Mrays/s by measurement
-    walls: dict[str, float] = field(default_factory=dict)  # seconds by measurement
-    cast_fraction: float = math.nan
-    others: float = 0.0  # most cores other processes used during one of the row's timings
-
-
-def rnd(x: float | None, digits: int = 2) -> float | None:
-    """x rounded, None kept."""
-    return None if x is None else round(x, digits)
+UNITS = {"mm": "mm", "mm?": "mm", "unknown": "mm", "m": "m", "inch": "in", "inch?": "in"}
+SIZES_MM = {"large": 195.0, "small": 38.0}
+"""Sphere radius per part size: seen from 500 mm, the large one's silhouette covers the frame's
+diagonal (every pixel hits; its front lies at 305 mm, inside the 300-700 mm depth of field),
+the small one covers about 6 % of the pixels."""
+DISTANCE_MM = 500.0
 
 
 def fix_malloc() -> bool:
@@ -137,82 +115,190 @@ def ring_views(part: Part, n: int, distance: float) -> Viewpoints:
     return make_viewpoints(centre + distance * dirs, -dirs)
 
 
-def synthetic_part(target_faces: int) -> tuple[str, Part]:
-    """An icosphere of radius SPHERE_RADIUS_MM with about target_faces faces (20 * 4**s)."""
+def sphere(faces: int, radius: float) -> tuple[str, Part]:
+    """A geodesic sphere of about `faces` faces and `radius` mm: each icosahedron face cut
+    into n^2 triangles (20 n^2 in all), projected onto the sphere (well-shaped triangles)."""
     import trimesh
 
-    level = max(0, round(math.log(max(target_faces, 20) / 20, 4)))
-    sphere = trimesh.creation.icosphere(subdivisions=level, radius=SPHERE_RADIUS_MM)
-    name = f"icosphere(s={level}, r={SPHERE_RADIUS_MM:g}mm)"
-    return name, part_from_arrays(np.asarray(sphere.vertices), np.asarray(sphere.faces))
+    n = max(1, round(math.sqrt(faces / 20)))
+    ico = trimesh.creation.icosahedron()
+    a, b, c = (ico.vertices[ico.faces[:, k]] for k in range(3))
+    ij = [(i, j) for i in range(n + 1) for j in range(n + 1 - i)]
+    index = {p: k for k, p in enumerate(ij)}
+    w = np.array(ij, dtype=float) / n  # barycentric weights of b and c per lattice point
+    points = (
+        a[:, None] * (1 - w.sum(1))[None, :, None]
+        + b[:, None] * w[None, :, :1]
+        + c[:, None] * w[None, :, 1:]
+    )
+    tris = [(index[i, j], index[i + 1, j], index[i, j + 1]) for i, j in ij if i + j < n]
+    tris += [
+        (index[i + 1, j], index[i + 1, j + 1], index[i, j + 1]) for i, j in ij if i + j < n - 1
+    ]
+    local = np.array(tris)
+    verts = points.reshape(-1, 3)
+    tri = (local[None] + (np.arange(20) * len(ij))[:, None, None]).reshape(-1, 3)
+    mesh = trimesh.Trimesh(verts / np.linalg.norm(verts, axis=1, keepdims=True) * radius, tri)
+    mesh.merge_vertices()
+    part = part_from_arrays(np.asarray(mesh.vertices), np.asarray(mesh.faces))
+    return f"sphere r={radius:g}mm", part
 
 
-def load_part(path: Path, units: str | None) -> Part:
-    """Load a mesh file into a Part (units from the table of shared meshes unless given)."""
-    return load_mesh(path.read_bytes(), path.suffix, units or UNITS.get(path.name, "mm"))
+def mesh_units(path: Path) -> str:
+    """Units of a shared mesh from the MANIFEST.csv beside it, else mm."""
+    table = path.parent / "MANIFEST.csv"
+    if table.is_file():
+        with open(table, newline="") as fh:
+            for row in csv.DictReader(fh):
+                if row["file"] == path.name:
+                    return UNITS.get(row["units_guess"].strip().lower(), "mm")
+    return "mm"
 
 
 @dataclass
-class Rays:
-    """Every view's world-space ray directions and origins, as trace_counts builds them."""
+class Scene:
+    """A part, its views and their pixel windows (the rays every method traces)."""
 
-    origins: list[np.ndarray]  # (P, 3) float32 per view (a broadcast row)
-    directions: list[np.ndarray]  # (P, 3) float32, per view
-    chunks: list[tuple[int, int, int]]  # (view, first ray, end ray)
-
-    @classmethod
-    def build(cls, sensor: Sensor, views: Viewpoints) -> Rays:
-        rotations = views.rotations()
-        dirs = [sensor.camera_rays @ r.T.astype(np.float32) for r in rotations]
-        origins = [  # one row seen n times, as EmbreeBackend.first_hits passes it
-            np.broadcast_to(p.astype(np.float32), d.shape)
-            for p, d in zip(views.positions, dirs, strict=True)
-        ]
-        step = max(1, CHUNK_RAYS // sensor.width_px) * sensor.width_px
-        chunks = [
-            (j, s, min(s + step, sensor.n_pixels))
-            for j in range(len(views))
-            for s in range(0, sensor.n_pixels, step)
-        ]
-        return cls(origins, dirs, chunks)
+    name: str
+    part: Part
+    views: Viewpoints
+    windows: list[tuple[int, int, int, int]]
+    sensor: Sensor
 
     @property
-    def total(self) -> int:
-        return sum(len(d) for d in self.directions)
+    def rays(self) -> int:
+        return sum((w[1] - w[0]) * (w[3] - w[2]) for w in self.windows)
+
+    @property
+    def pixels(self) -> int:
+        return len(self.views) * self.sensor.n_pixels
+
+    def blocks(self) -> list[Block]:
+        """Each view's window in blocks of whole rows of about CHUNK_RAYS rays."""
+        out = []
+        for j, (v0, v1, u0, u1) in enumerate(self.windows):
+            step = max(1, CHUNK_RAYS // max(u1 - u0, 1))
+            for v in range(v0, v1, step):
+                rows = (v, min(v + step, v1))
+                out.append(
+                    Block(
+                        self.sensor,
+                        self.views.positions[j],
+                        self.views.rotations()[j],
+                        rows,
+                        (u0, u1),
+                    )
+                )
+        return out
+
+
+def make_scene(name: str, part: Part, views: int, sensor: Sensor) -> Scene:
+    """The part seen by `views` ring cameras at DISTANCE_MM, with their culled windows."""
+    ring = ring_views(part, views, DISTANCE_MM)
+    hull = _hull_points(part.vertices)
+    rot = ring.rotations()
+    windows = [_window(sensor, ring.positions[j], rot[j], hull) for j in range(views)]
+    return Scene(name, part, ring, windows, sensor)
+
+
+# ------------------------------------------------------------------------ the C++ ceiling
+
+
+def build_ceiling() -> Path | str:
+    """The compiled bench/ceiling.cpp (cached by source hash), or why it cannot be built."""
+    src = Path(__file__).with_name("ceiling.cpp")
+    include = [
+        p
+        for p in (
+            "/usr/include/embree4",
+            "/usr/local/include/embree4",
+            "/usr/include/embree3",
+            "/usr/local/include/embree3",
+        )
+        if Path(p).is_dir()
+    ]
+    if not include or not shutil.which("g++"):
+        return "no Embree headers or no g++ (Debian: apt install g++ libembree-dev)"
+    lib = "embree4" if "embree4" in include[0] else "embree3"
+    digest = hashlib.sha256(src.read_bytes() + lib.encode()).hexdigest()[:12]
+    exe = Path(tempfile.gettempdir()) / f"vpp-ceiling-{digest}"
+    if not exe.is_file():
+        cmd = [
+            "g++",
+            "-O3",
+            "-march=native",
+            "-std=c++17",
+            "-o",
+            str(exe),
+            str(src),
+            f"-l{lib}",
+            "-lpthread",
+        ]
+        done = subprocess.run(cmd, capture_output=True, text=True)
+        if done.returncode:
+            return f"g++ failed: {done.stderr.strip()[:300]}"
+    return exe
+
+
+def write_scene(scene: Scene, threads: int, repeat: int, path: Path) -> None:
+    """The ceiling's input file (layout in bench/ceiling.cpp)."""
+    s, part = scene.sensor, scene.part
+    with open(path, "wb") as fh:
+        fh.write(
+            struct.pack(
+                "<7if",
+                len(part.vertices),
+                part.n_faces,
+                len(scene.views),
+                threads,
+                repeat,
+                s.width_px,
+                s.height_px,
+                s.far_mm,
+            )
+        )
+        fh.write(part.vertices.astype("<f4").tobytes() + part.faces.astype("<i4").tobytes())
+        fh.write(s.pixel_x.astype("<f4").tobytes() + s.pixel_y.astype("<f4").tobytes())
+        rot = scene.views.rotations()
+        for j, w in enumerate(scene.windows):
+            fh.write(scene.views.positions[j].astype("<f4").tobytes())
+            fh.write(rot[j].astype("<f4").tobytes() + np.array(w, "<i4").tobytes())
+
+
+def run_ceiling(exe: Path, scene: Scene, threads: int, repeat: int) -> dict[str, Any]:
+    """Run the ceiling on the scene: {"wall_s", "rays", "hits", "embree"}."""
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "scene.bin"
+        write_scene(scene, threads, repeat + 1, path)  # its first run is the warm-up
+        out = subprocess.run([str(exe), str(path)], capture_output=True, text=True, check=True)
+    return dict(json.loads(out.stdout))
+
+
+# ------------------------------------------------------------------------ bare embreex and backends
 
 
 def run_bare(
-    scene: Any, rays: Rays, far: float, threads: int, primid_only: bool, views: int | None = None
+    embree: EmbreeBackend, blocks: list[tuple[np.ndarray, np.ndarray]], far: float, threads: int
 ) -> None:
-    """Trace the chunks (of the first `views` views) over a pool; results are dropped."""
-    chunks = [c for c in rays.chunks if views is None or c[0] < views]
+    """First hits of every block's rays through embreex over a T-thread pool (results dropped)."""
+    scene = embree._scene
 
-    def work(chunk: tuple[int, int, int]) -> None:
-        j, s, e = chunk
-        if primid_only:
-            scene.run(rays.origins[j][s:e], rays.directions[j][s:e])
-        else:
-            scene.run(rays.origins[j][s:e], rays.directions[j][s:e], dists=far, output=1)
+    def work(item: tuple[np.ndarray, np.ndarray]) -> None:
+        origins, directions = item
+        scene.run(origins, directions, dists=far, output=1)
 
     with ThreadPoolExecutor(threads) as pool:
-        for _ in pool.map(work, chunks):
+        for _ in pool.map(work, blocks):
             pass
 
 
-def hit_stats(scene: Any, rays: Rays, far: float, threads: int) -> tuple[float, list[float]]:
-    """Fraction of all rays that hit before far, and [min, max] depth of the hits (untimed)."""
-
-    def work(chunk: tuple[int, int, int]) -> tuple[int, float, float]:
-        j, s, e = chunk
-        out = scene.run(rays.origins[j][s:e], rays.directions[j][s:e], dists=far, output=1)
-        t = out["tfar"][out["primID"] >= 0]
-        return len(t), float(t.min(initial=np.inf)), float(t.max(initial=-np.inf))
-
-    with ThreadPoolExecutor(threads) as pool:
-        res = list(pool.map(work, rays.chunks))
-    hits = sum(r[0] for r in res)
-    lo, hi = min(r[1] for r in res), max(r[2] for r in res)
-    return hits / rays.total, [round(lo, 1), round(hi, 1)] if hits else []
+def bare_rays(scene: Scene) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(origins, directions) float32 of every block, made before any clock starts."""
+    out = []
+    for block in scene.blocks():
+        d = block_directions(block)
+        out.append((np.broadcast_to(block.position.astype(np.float32), d.shape), d))
+    return out
 
 
 def busy_seconds() -> tuple[float, float] | None:
@@ -283,114 +369,125 @@ def timed(fn: Callable[[], Any], repeat: int) -> tuple[Timing, Any]:
     return best, result
 
 
-def bench_part(
-    name: str, part: Part, args: argparse.Namespace, sensor: Sensor, rows: list[Row]
+@dataclass
+class Row:
+    """One (scene, threads) line of the summary table: Mrays/s by method."""
+
+    scene: str
+    faces: int
+    threads: int
+    hit: float
+    cast: float
+    rates: dict[str, float] = field(default_factory=dict)
+    walls: dict[str, float] = field(default_factory=dict)
+    others: float = 0.0
+
+
+def bench_scene(
+    scene: Scene, args: argparse.Namespace, ceiling: Path | str, rows: list[Row]
 ) -> None:
-    """All measurements on one part; JSON lines to stdout, table rows appended to rows."""
-    views = ring_views(part, args.views, args.distance)
-    n, far = len(views), sensor.far_mm
-    pixels = n * sensor.n_pixels
-    t0 = time.perf_counter()
-    backend = EmbreeBackend(part.vertices, part.faces)  # robust=True, as make_backend
-    scene = backend._scene
-    scene.run(np.zeros((1, 3), np.float32), np.ones((1, 3), np.float32))  # commit = BVH build
-    build_s = time.perf_counter() - t0
-    rays = Rays.build(sensor, views)
-    t0 = time.perf_counter()
-    hull = _hull_points(part.vertices)
-    hull_s = time.perf_counter() - t0
-    hit_fraction, depth = hit_stats(scene, rays, far, max(args.threads))
+    """Every method on one scene at each thread count; JSON lines out, table rows appended."""
+    sensor, far = scene.sensor, scene.sensor.far_mm
+    embree = EmbreeBackend(scene.part)
+    embree._scene.run(np.zeros((1, 3), np.float32), np.ones((1, 3), np.float32))  # BVH build
+    backends = {name: make_backend(scene.part, name) for name in args.backends}
+    rays = bare_rays(scene)
+    hits = sum(int((embree.first_hits(o[:1][0], d, far)[0] >= 0).sum()) for o, d in rays)
     emit(
         {
-            "kind": "mesh",
-            "mesh": name,
-            "faces": part.n_faces,
-            "vertices": len(part.vertices),
-            "bbox_mm": [round(float(x), 2) for x in np.ptp(part.bounds, axis=0)],
-            "distance_mm": args.distance,
-            "views": n,
-            "pixels": pixels,
-            "build_s": round(build_s, 4),
-            "hull_points": len(hull),
-            "hull_s": round(hull_s, 4),
-            "hit_fraction": round(hit_fraction, 4),
-            "hit_depth_mm": depth,
-            "dof_mm": [sensor.near_mm, far],
+            "kind": "scene",
+            "scene": scene.name,
+            "faces": scene.part.n_faces,
+            "views": len(scene.views),
+            "pixels": scene.pixels,
+            "rays": scene.rays,
+            "cast_fraction": round(scene.rays / scene.pixels, 4),
+            "hit_fraction": round(hits / scene.pixels, 4),
         }
     )
-    first = views.take(np.array([0]))
+    first = scene.views.take(np.array([0]))
     for threads in args.threads:
-        row = Row(name, part.n_faces, threads, build_s, hit_fraction)
-        rows.append(row)
-        base = {"kind": "measure", "mesh": name, "faces": part.n_faces, "threads": threads}
-        base |= {"views": n, "pixels": pixels}
-
-        for mode, primid in (("bare", False), ("bare_primid", True)):
-            wait_idle(args.wait_idle)
-            run_bare(scene, rays, far, threads, primid, views=1)  # warm-up
-            tm, _ = timed(partial(run_bare, scene, rays, far, threads, primid), args.repeat)
-            wall = tm.wall
-            row.rates[mode], row.walls[mode] = pixels / wall / 1e6, wall
-            row.others = max(row.others, tm.others_cores or 0.0)
-            record = base | {"mode": mode, "rays": pixels, "wall_s": round(wall, 4)}
-            record |= {"mrays_s": round(pixels / wall / 1e6, 3), "own_cores": rnd(tm.own_cores)}
-            emit(record | {"others_cores": rnd(tm.others_cores), "page_faults": tm.page_faults})
-
-        for mode, cull in (("full", False), ("cull", True)):
-            wait_idle(args.wait_idle)
-            trace_counts(part, sensor, first, backend=backend, threads=threads, cull=cull)
-            trace = partial(trace_counts, part, sensor, views, backend=backend, threads=threads)
-            tm, tr = timed(partial(trace, cull=cull), args.repeat)
-            assert tr.pixels == pixels
-            wall = tm.wall
-            rate = pixels / wall / 1e6
-            row.rates[mode], row.walls[mode] = rate, wall
-            row.others = max(row.others, tm.others_cores or 0.0)
-            record = base | {"mode": mode, "rays": tr.rays_cast, "wall_s": round(wall, 4)}
-            record |= {"mrays_s": round(rate, 3)}
-            record |= {"cast_mrays_s": round(tr.rays_cast / wall / 1e6, 3)}
-            record |= {
-                "ratio_to_bare": round(rate / row.rates["bare"], 3),
-                "cast_fraction": round(tr.rays_cast / pixels, 4),
-                "valid_rays": int(tr.counts.sum()),
-                "valid_fraction": round(int(tr.counts.sum()) / pixels, 4),
-                "own_cores": rnd(tm.own_cores),
-                "others_cores": rnd(tm.others_cores),
-                "page_faults": tm.page_faults,
-            }
-            if cull:
-                row.cast_fraction = tr.rays_cast / pixels
-                row.rates["cull_cast"] = tr.rays_cast / wall / 1e6
-            emit(record)
-
-
-def print_table(rows: list[Row], target: float) -> None:
-    """Human-readable summary on stderr."""
-    head = (
-        f"{'mesh':<36} {'faces':>8} {'T':>2} {'build s':>7} {'hit%':>6} {'bare':>6} "
-        f"{'primID':>6} {'full':>6} {'b/a':>5} {'cull px':>7} {'cull cast':>9} {'cast%':>6}  "
-        f"{'wall s bare/full/cull':>21} {'other':>5}"
-    )
-    title = (
-        "Mrays/s (bare = Embree run(output=1) reference; primID = plain run(); "
-        "full = trace_counts cull=False; cull = cull=True, per pixel and per cast ray)"
-    )
-    out = ["", title, head, "-" * len(head)]
-    for r in rows:
-        ratio = r.rates["full"] / r.rates["bare"]
-        flag = "" if ratio >= target else " <"
-        walls = "/".join(f"{r.walls[k]:.2f}" for k in ("bare", "full", "cull"))
-        out.append(
-            f"{r.mesh[:36]:<36} {r.faces:>8} {r.threads:>2} {r.build_s:>7.3f} "
-            f"{100 * r.hit_fraction:>5.1f}% {r.rates['bare']:>6.2f} {r.rates['bare_primid']:>6.2f} "
-            f"{r.rates['full']:>6.2f} {ratio:>5.2f} {r.rates['cull']:>7.2f} "
-            f"{r.rates['cull_cast']:>9.2f} {100 * r.cast_fraction:>5.1f}%  {walls:>21} "
-            f"{r.others:>5.2f}{flag}"
+        row = Row(
+            scene.name, scene.part.n_faces, threads, hits / scene.pixels, scene.rays / scene.pixels
         )
-    out.append(
-        f"(b/a target >= {target}; '<' marks a miss; other = most cores other processes used "
-        "during the row's timings: above ~0.2 the rates are disturbed)"
+        rows.append(row)
+        methods: dict[str, Callable[[], Any]] = {}
+        if isinstance(ceiling, Path):
+            methods["ceiling"] = lambda: None  # timed inside the harness
+        methods["bare"] = lambda t=threads: run_bare(embree, rays, far, t)
+        for name, backend in backends.items():
+            methods[name] = lambda b=backend, t=threads: trace_counts(
+                scene.part, sensor, scene.views, backend=b, threads=t
+            )
+        for method, fn in methods.items():
+            wait_idle(args.wait_idle)
+            if method == "ceiling":
+                assert isinstance(ceiling, Path)
+                out = run_ceiling(ceiling, scene, threads, args.repeat)
+                tm = Timing(out["wall_s"])  # another process: no core accounting
+                extra: dict[str, Any] = {"embree_major": out["embree"], "hits": out["hits"]}
+            else:
+                if method in backends:
+                    trace_counts(
+                        scene.part, sensor, first, backend=backends[method], threads=threads
+                    )
+                else:
+                    run_bare(embree, rays[:1], far, threads)
+                tm, result = timed(fn, args.repeat)
+                extra = {"valid_rays": int(result.counts.sum())} if method in backends else {}
+            rate = scene.rays / tm.wall / 1e6
+            row.rates[method], row.walls[method] = rate, tm.wall
+            row.others = max(row.others, tm.others_cores or 0.0)
+            emit(
+                {
+                    "kind": "measure",
+                    "scene": scene.name,
+                    "faces": scene.part.n_faces,
+                    "threads": threads,
+                    "method": method,
+                    "rays": scene.rays,
+                    "wall_s": round(tm.wall, 4),
+                    "mrays_s": round(rate, 2),
+                    "mpx_s": round(scene.pixels / tm.wall / 1e6, 2),
+                    "own_cores": rnd(tm.own_cores),
+                    "others_cores": rnd(tm.others_cores),
+                    **extra,
+                }
+            )
+
+
+def rnd(x: float | None, digits: int = 2) -> float | None:
+    """x rounded, None kept."""
+    return None if x is None else round(x, digits)
+
+
+def print_table(rows: list[Row], backends: list[str]) -> None:
+    """Human-readable summary on stderr."""
+    methods = ["ceiling", "bare", *backends]
+    head = (
+        f"{'scene':<22} {'faces':>8} {'T':>2} {'hit%':>5} {'cast%':>5} "
+        + " ".join(f"{m:>8}" for m in methods)
+        + " "
+        + " ".join(f"{b + '/ceil':>11} {b + '/bare':>11}" for b in backends)
+        + f" {'others':>6}"
     )
+    out = [
+        "",
+        "Mrays/s over the same rays (one per pixel of each view's culled window)",
+        head,
+        "-" * len(head),
+    ]
+    for r in rows:
+        cells = " ".join(f"{r.rates[m]:>8.1f}" if m in r.rates else f"{'-':>8}" for m in methods)
+        ratios = " ".join(
+            (f"{r.rates[b] / r.rates['ceiling']:>11.2f}" if "ceiling" in r.rates else f"{'-':>11}")
+            + f" {r.rates[b] / r.rates['bare']:>11.2f}"
+            for b in backends
+        )
+        out.append(
+            f"{r.scene[:22]:<22} {r.faces:>8} {r.threads:>2} {100 * r.hit:>5.1f} "
+            f"{100 * r.cast:>5.1f} {cells} {ratios} {r.others:>6.2f}"
+        )
     print("\n".join(out), file=sys.stderr, flush=True)
 
 
@@ -398,28 +495,15 @@ def main(argv: list[str] | None = None) -> int:
     """Command-line entry point."""
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     ap.add_argument(
-        "--meshes",
-        nargs="*",
-        type=Path,
-        default=[MESH_DIR / m for m in DEFAULT_MESHES],
-        help="mesh files (default: a few of ../shared/meshes)",
+        "--faces", default="10000,100000,1000000", help="sphere face counts (empty: none)"
     )
-    ap.add_argument("--units", default=None, help="units of all meshes (default: per file, mm)")
-    ap.add_argument("--views", type=int, default=8, help="cameras per mesh")
+    ap.add_argument("--sizes", default="large,small", help=f"sphere sizes: {', '.join(SIZES_MM)}")
+    ap.add_argument("--meshes", nargs="*", type=Path, default=[], help="mesh files to add")
+    ap.add_argument("--views", type=int, default=8, help="cameras per scene")
     ap.add_argument("--threads", default="1,2", help="comma-separated thread counts")
-    ap.add_argument(
-        "--synthetic-faces", type=int, default=1_000_000, help="icosphere faces (~), 0 = none"
-    )
-    ap.add_argument("--distance", type=float, default=None, help="camera distance, mm (def. WD)")
-    ap.add_argument("--repeat", type=int, default=1, help="timed runs per measurement (fastest)")
-    ap.add_argument("--target", type=float, default=0.80, help="target full/bare ratio")
-    ap.add_argument(
-        "--malloc",
-        choices=["fixed", "default"],
-        default="fixed",
-        help="fixed: glibc mmap/trim thresholds pinned (stable rates, see fix_malloc); "
-        "default: leave glibc's sliding thresholds",
-    )
+    ap.add_argument("--repeat", type=int, default=3, help="timed runs per measurement (fastest)")
+    ap.add_argument("--backends", default=",".join(BACKENDS), help="project backends to time")
+    ap.add_argument("--no-ceiling", action="store_true", help="skip the C++ ceiling")
     ap.add_argument(
         "--wait-idle",
         type=float,
@@ -429,35 +513,46 @@ def main(argv: list[str] | None = None) -> int:
     )
     args = ap.parse_args(argv)
     args.threads = [int(t) for t in args.threads.split(",") if t.strip()]
-    malloc_fixed = args.malloc == "fixed" and fix_malloc()
+    args.backends = [b for b in args.backends.split(",") if b.strip()]
+    malloc_fixed = fix_malloc()
     sensor = Sensor()
-    args.distance = args.distance or sensor.working_distance
+    ceiling: Path | str = "skipped (--no-ceiling)" if args.no_ceiling else build_ceiling()
+    if not isinstance(ceiling, Path):
+        print(f"ceiling: {ceiling}", file=sys.stderr)
     emit(
         {
             "kind": "setup",
             "sensor": [sensor.width_px, sensor.height_px],
             "threads": args.threads,
             "cpus": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None,
-            "chunk_rays": CHUNK_RAYS,
+            "ceiling": str(ceiling),
             "malloc_fixed": malloc_fixed,
-            "openblas_num_threads": os.environ.get("OPENBLAS_NUM_THREADS"),
             "numpy": np.__version__,
         }
     )
     rows: list[Row] = []
+    for faces in [int(f) for f in args.faces.split(",") if f.strip()]:
+        for size in [s for s in args.sizes.split(",") if s.strip()]:
+            t0 = time.perf_counter()
+            name, part = sphere(faces, SIZES_MM[size])
+            print(
+                f"built {name}: {part.n_faces} faces in {time.perf_counter() - t0:.1f} s",
+                file=sys.stderr,
+            )
+            bench_scene(
+                make_scene(f"{size} {part.n_faces // 1000}k", part, args.views, sensor),
+                args,
+                ceiling,
+                rows,
+            )
     for path in args.meshes:
         if not path.is_file():
             print(f"skipping {path}: not found", file=sys.stderr)
             continue
-        bench_part(path.name, load_part(path, args.units), args, sensor, rows)
-    if args.synthetic_faces > 0:
-        t0 = time.perf_counter()
-        name, part = synthetic_part(args.synthetic_faces)
-        took = time.perf_counter() - t0
-        print(f"built {name}: {part.n_faces} faces in {took:.1f} s", file=sys.stderr)
-        bench_part(name, part, args, sensor, rows)
+        part = load_mesh(path.read_bytes(), path.suffix, mesh_units(path))
+        bench_scene(make_scene(path.name, part, args.views, sensor), args, ceiling, rows)
     if rows:
-        print_table(rows, args.target)
+        print_table(rows, args.backends)
     return 0
 
 

@@ -9,9 +9,9 @@ import pytest
 
 from tests.conftest import MANIFEST_UNITS, MESHES, manifest_rows, plate_part, shared_dir
 from vpp_core.candidates import GeneratorSettings, generate
+from vpp_core.document import CandidateGenerator, PlanRequest
 from vpp_core.embree import EmbreeBackend, block_directions
 from vpp_core.mesh import Part, load_mesh, part_from_arrays
-from vpp_core.document import CandidateGenerator, PlanRequest
 from vpp_core.plan import plan
 from vpp_core.pose import Viewpoints, make_viewpoints
 from vpp_core.raster import view_first_hits
@@ -34,6 +34,7 @@ def raster_ids(part: Part, sensor: Sensor, views: Viewpoints, j: int, window) ->
     ids, _ = view_first_hits(
         part.vertices.astype(np.float64),
         part.faces.astype(np.int32),
+        np.arange(part.n_faces, dtype=np.int32),
         views.positions[j].astype(np.float64),
         views.rotations()[j],
         sensor.pixel_x,

@@ -138,11 +138,15 @@ def _hull_points(vertices: np.ndarray) -> np.ndarray:
 
     lo, hi = vertices.min(axis=0), vertices.max(axis=0)
     size = np.maximum(hi - lo, 1e-9) / HULL_CELLS
-    ijk = np.minimum((vertices - lo) // size, HULL_CELLS - 1).astype(np.int64)
-    flat = np.unique((ijk[:, 0] * HULL_CELLS + ijk[:, 1]) * HULL_CELLS + ijk[:, 2])
-    cells = np.column_stack(np.unravel_index(flat, (HULL_CELLS,) * 3))
-    offsets = np.array(np.meshgrid([0, 1], [0, 1], [0, 1])).reshape(3, -1).T
-    corners = np.unique((cells[:, None, :] + offsets[None]).reshape(-1, 3), axis=0) * size + lo
+    ijk = np.minimum((vertices - lo) // size, HULL_CELLS - 1).astype(np.intp)
+    occupied = np.zeros((HULL_CELLS,) * 3, dtype=bool)  # a grid, not np.unique: no sort of V
+    occupied[ijk[:, 0], ijk[:, 1], ijk[:, 2]] = True
+    corner = np.zeros((HULL_CELLS + 1,) * 3, dtype=bool)
+    for di in (0, 1):
+        for dj in (0, 1):
+            for dk in (0, 1):
+                corner[di : di + HULL_CELLS, dj : dj + HULL_CELLS, dk : dk + HULL_CELLS] |= occupied
+    corners = np.argwhere(corner) * size + lo
     try:
         return np.asarray(corners[ConvexHull(corners).vertices])
     except (QhullError, ValueError):

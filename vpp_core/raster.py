@@ -88,7 +88,7 @@ class RasterBackend:
         """Faces of the block's valid pixel rays and their counts, by z-buffer (GIL released)."""
         pixels = (block.rows[1] - block.rows[0]) * (block.cols[1] - block.cols[0])
         if len(self._faces) > MAX_FACES_PER_PIXEL * pixels:
-            return self.embree.valid_hits(block)
+            return _count(self.embree.valid_hits(block)[0], len(self._faces))
         sensor = block.sensor
         scale = np.array(
             [sensor.fx, sensor.fy, sensor.width_px / 2 - 0.5, sensor.height_px / 2 - 0.5]
@@ -486,6 +486,16 @@ def _last(u: float, hi: int) -> int:
     """Last pixel index at or before coordinate u (plus the margin), at most hi (inf-safe)."""
     k = np.floor(u + SCAN_MARGIN_PX)
     return hi if not k < hi else (-(1 << 62) if k < -1e18 else int(k))
+
+
+@kernel
+def _count(ids: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Distinct ids (k,) int32 of `ids` (values in 0..n-1), sorted, and how often each occurs."""
+    counts = np.zeros(n, np.int32)
+    for f in ids:
+        counts[f] += 1
+    faces = np.flatnonzero(counts).astype(np.int32)
+    return faces, counts[faces]
 
 
 @kernel

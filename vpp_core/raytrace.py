@@ -136,9 +136,12 @@ def _hull_points(vertices: np.ndarray) -> np.ndarray:
     """
     from scipy.spatial import ConvexHull, QhullError
 
-    lo, hi = vertices.min(axis=0), vertices.max(axis=0)
+    # per column: a reduction along axis 0 of an (n, 3) array is several times slower
+    lo = np.array([vertices[:, k].min() for k in range(3)])
+    hi = np.array([vertices[:, k].max() for k in range(3)])
     size = np.maximum(hi - lo, 1e-9) / HULL_CELLS
-    ijk = np.minimum((vertices - lo) // size, HULL_CELLS - 1).astype(np.intp)
+    ijk = ((vertices - lo) * (1.0 / size)).astype(np.intp)  # >= 0: truncation is floor
+    np.minimum(ijk, HULL_CELLS - 1, out=ijk)
     occupied = np.zeros((HULL_CELLS,) * 3, dtype=bool)  # a grid, not np.unique: no sort of V
     occupied[ijk[:, 0], ijk[:, 1], ijk[:, 2]] = True
     corner = np.zeros((HULL_CELLS + 1,) * 3, dtype=bool)
@@ -173,6 +176,10 @@ def _window(
 def _column(hits: list[Hits], representative: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """One view's (faces hit, valid-ray counts), both (k,) int32, from its blocks' hits;
     duplicate faces counted on their representative."""
+    faces, counts = hits[0]
+    if len(hits) == 1 and counts is not None:  # reduced in the worker: O(k), not O(M)
+        if np.array_equal(representative.take(faces), faces):
+            return faces.astype(np.int32), counts.astype(np.int32)
     faces = representative.take(np.concatenate([f for f, _ in hits]))
     weights = None
     if any(c is not None for _, c in hits):

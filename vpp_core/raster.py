@@ -3,18 +3,20 @@
 For a pinhole camera, "the first face hit by the ray through each pixel centre" is exactly
 the face whose projected triangle contains the pixel centre and is nearest there. Per view:
 
-1. vertices to the camera frame; faces with a vertex behind the plane z = Z_CLIP are clipped
-   against it (Sutherland-Hodgman), the rest projected to pixel coordinates u = x/z fx + cx;
-2. each triangle is scanned row by row over its exact span; a pixel centre is inside when all
-   three edge functions are > 0, or = 0 on a top-left edge (the shared-edge rule: each edge
-   is evaluated from its lexicographically smaller end, so neighbours get the same value of
-   opposite sign and exactly one of them owns the pixel); the z-buffer holds 1/z, which is
-   linear in the ray direction (x, y, 1) for a plane: 1/z = n.d / n.v0;
+1. vertices to the camera frame and the image; faces with a vertex behind the plane
+   z = Z_CLIP are clipped against it (Sutherland-Hodgman); faces whose bounding box holds no
+   pixel centre are dropped;
+2. each triangle is scanned row by row: a pixel centre is inside when all three edge
+   functions are > 0, or = 0 on a top-left edge (each edge is evaluated from its
+   lexicographically smaller end, so neighbours get the same value of opposite sign and
+   exactly one of them owns the pixel); the z-buffer holds 1/z, which is linear in the ray
+   direction (x, y, 1) for a plane: 1/z = n.d / n.v0; at equal depth the lower id wins;
 3. the SPEC §3 checks per pixel (near <= z <= far, |cos incidence| >= cos_min) on the winner.
 
-Arithmetic is float64 throughout. It answers the same question as `EmbreeBackend` up to
-floating-point ties: pixel centres on a shared edge (top-left rule here, Embree's own rule
-there) and faces at equal depth (lower face id wins here).
+Arithmetic is float64 on Embree's own float32 pixel rays, so the two agree but for pixel
+centres on edges and coplanar overlapping faces (tests/test_raster.py). Faces are drawn in a
+Morton order of their centroids (memory locality); a view with more faces than pixels goes
+to Embree rays (MAX_FACES_PER_PIXEL). Method and figures: docs/raytrace.md.
 """
 
 from __future__ import annotations

@@ -59,7 +59,14 @@ from vpp_core.embree import CHUNK_RAYS, EmbreeBackend, block_directions  # noqa:
 from vpp_core.mesh import Part, load_mesh, part_from_arrays  # noqa: E402
 from vpp_core.pose import Viewpoints, make_viewpoints  # noqa: E402
 from vpp_core.rays import Block  # noqa: E402
-from vpp_core.raytrace import BACKENDS, _hull_points, _window, make_backend, trace_counts  # noqa: E402
+from vpp_core.raytrace import (  # noqa: E402
+    BACKENDS,
+    _chunks,
+    _hull_points,
+    _window,
+    make_backend,
+    trace_counts,
+)
 from vpp_core.sensor import Sensor  # noqa: E402
 
 MESH_DIR = ROOT.parent / "shared" / "meshes"
@@ -174,22 +181,14 @@ class Scene:
         return len(self.views) * self.sensor.n_pixels
 
     def blocks(self) -> list[Block]:
-        """Each view's window in blocks of whole rows of about CHUNK_RAYS rays."""
-        out = []
-        for j, (v0, v1, u0, u1) in enumerate(self.windows):
-            step = max(1, CHUNK_RAYS // max(u1 - u0, 1))
-            for v in range(v0, v1, step):
-                rows = (v, min(v + step, v1))
-                out.append(
-                    Block(
-                        self.sensor,
-                        self.views.positions[j],
-                        self.views.rotations()[j],
-                        rows,
-                        (u0, u1),
-                    )
-                )
-        return out
+        """Each view's window in blocks of whole rows of about CHUNK_RAYS rays, as
+        `trace_counts` splits it for the `embree` backend."""
+        rotations = self.views.rotations()
+        return [
+            Block(self.sensor, self.views.positions[c.view], rotations[c.view], c.rows, c.cols)
+            for j, window in enumerate(self.windows)
+            for c in _chunks(j, *window, CHUNK_RAYS)
+        ]
 
 
 def make_scene(name: str, part: Part, views: int, sensor: Sensor) -> Scene:

@@ -16,14 +16,24 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from cli import serve
-from vpp_core.document import CandidateGenerator, PlanDocument, PlanRequest, SolverSettings, Target
+from vpp_core.document import (
+    CandidateGenerator,
+    PlanDocument,
+    PlanRequest,
+    SolverSettings,
+    Target,
+)
 from vpp_core.errors import VppError
-from vpp_core.mesh import UNITS_TO_MM, load_mesh
-from vpp_core.plan import plan
-from vpp_core.raytrace import BACKENDS, DEFAULT_BACKEND
+from vpp_core.mesh import UNITS_TO_MM, Part, load_mesh
+from vpp_core.plan import explicit_viewpoints, plan
+from vpp_core.plots import plan_plots, study_plots
+from vpp_core.pointcloud import CloudStats, simulate, write_ply
+from vpp_core.rays import DEFAULT_BACKEND
+from vpp_core.raytrace import BACKENDS, make_backend
 from vpp_core.samples import sample_stl
 from vpp_core.sensor import make_sensor
-from worker.settings import get_settings
+from vpp_core.studies import DecimationRow, Study, decimation_study, resolution_sweep, study_csv
+from worker.settings import Settings, get_settings
 
 EXIT_INPUT = 2
 """Exit code for anything wrong with the input (files, options, mesh, sensor, limits)."""
@@ -51,6 +61,58 @@ def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="vpp", description="Inspection viewpoint planning (SPEC v1).")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
     p = sub.add_parser("plan", help="plan the fewest viewpoints covering a mesh")
+    _plan_options(p)
+    p.add_argument("-o", "--output", type=Path, help="write the plan document (JSON) here")
+    p.add_argument(
+        "--point-cloud",
+        type=Path,
+        metavar="OUT.ply",
+        help="simulate the selected views' point cloud: PLY with neighbours within r̄ per point",
+    )
+    p.add_argument("--plots", type=Path, metavar="DIR", help="write PNG plots and data here")
+    p.set_defaults(run=run_plan)
+    st = sub.add_parser("study", help="the paper's studies: resolution sweep, decimation")
+    kinds = st.add_subparsers(dest="kind", required=True, parser_class=_Parser)
+    r = kinds.add_parser("resolution", help="#viewpoints against target resolution, one trace")
+    _plan_options(r)
+    r.add_argument(
+        "--resolutions",
+        type=_floats,
+        default=DEFAULT_RESOLUTIONS,
+        help="comma-separated target resolutions, mm",
+    )
+    d = kinds.add_parser("decimation", help="plans on decimated meshes, judged on the original")
+    _plan_options(d)
+    d.add_argument(
+        "--ratios", type=_floats, default=DEFAULT_RATIOS, help="comma-separated face ratios"
+    )
+    for q in (r, d):
+        q.add_argument("-o", "--output", type=Path, help="write the study (JSON) here")
+        q.add_argument("--csv", type=Path, help="write the rows as CSV here")
+        q.add_argument("--plots", type=Path, metavar="DIR", help="write PNG plots and data here")
+        q.set_defaults(run=run_study)
+    e = sub.add_parser("sample", help="write the sample part (a flanged bushing, mm) as STL")
+    e.add_argument("output", type=Path, help="STL file to write")
+    e.set_defaults(run=run_sample)
+    s = sub.add_parser(
+        "serve", help="run the HTTP API (with an embedded Redis and workers if no VPP_REDIS_URL)"
+    )
+    s.add_argument("--host", default="127.0.0.1")
+    s.add_argument("--port", type=int, default=8000)
+    s.add_argument(
+        "--workers", type=_positive_int, help="local workers (embedded mode; default VPP_WORKERS)"
+    )
+    s.set_defaults(run=serve.run_serve)
+    w = sub.add_parser("worker", help="run workers on the queue at VPP_REDIS_URL")
+    w.add_argument("--url", help="Redis URL (default: VPP_REDIS_URL)")
+    w.add_argument("--workers", type=_positive_int, help="worker processes (default VPP_WORKERS)")
+    w.add_argument("--burst", action="store_true", help="exit when the queue is empty")
+    w.set_defaults(run=serve.run_workers)
+    return parser
+
+
+def _plan_options(p: argparse.ArgumentParser) -> None:
+    """The options `vpp plan` and the studies share: mesh, sensor, target, candidates, solver."""
     p.add_argument("mesh", type=Path, help="mesh file: STL, OBJ, PLY, OFF, GLB, GLTF")
     p.add_argument("--units", default="mm", choices=sorted(UNITS_TO_MM), help="mesh file units")
     p.add_argument("--format", help="mesh format if the extension does not tell")
@@ -79,27 +141,23 @@ def build_parser() -> argparse.ArgumentParser:
         choices=BACKENDS,
         help=f"ray backend for R (default {DEFAULT_BACKEND}: the fastest)",
     )
-    p.add_argument("-o", "--output", type=Path, help="write the plan document (JSON) here")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
-    p.set_defaults(run=run_plan)
-    e = sub.add_parser("sample", help="write the sample part (a flanged bushing, mm) as STL")
-    e.add_argument("output", type=Path, help="STL file to write")
-    e.set_defaults(run=run_sample)
-    s = sub.add_parser(
-        "serve", help="run the HTTP API (with an embedded Redis and workers if no VPP_REDIS_URL)"
-    )
-    s.add_argument("--host", default="127.0.0.1")
-    s.add_argument("--port", type=int, default=8000)
-    s.add_argument(
-        "--workers", type=_positive_int, help="local workers (embedded mode; default VPP_WORKERS)"
-    )
-    s.set_defaults(run=serve.run_serve)
-    w = sub.add_parser("worker", help="run workers on the queue at VPP_REDIS_URL")
-    w.add_argument("--url", help="Redis URL (default: VPP_REDIS_URL)")
-    w.add_argument("--workers", type=_positive_int, help="worker processes (default VPP_WORKERS)")
-    w.add_argument("--burst", action="store_true", help="exit when the queue is empty")
-    w.set_defaults(run=serve.run_workers)
-    return parser
+
+
+DEFAULT_RESOLUTIONS = [0.1, 0.12, 0.14, 0.16, 0.18, 0.2, 0.25, 0.3, 0.4, 0.5]
+"""Target resolutions (mm) of `vpp study resolution` when none are given."""
+DEFAULT_RATIOS = [1.0, 0.5, 0.2, 0.1, 0.05]
+"""Face ratios of `vpp study decimation` when none are given."""
+
+
+def _floats(text: str) -> list[float]:
+    """argparse type: comma-separated numbers."""
+    try:
+        return [float(t) for t in text.split(",") if t.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"not a comma-separated list of numbers: {text!r}"
+        ) from None
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -122,22 +180,20 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def run_plan(args: argparse.Namespace) -> int:
-    """Load, plan, print the summary and write the document."""
+    """Load, plan, print the summary and write the document, point cloud and plots."""
     settings = get_settings()
     request = _request(args)
     start = time.perf_counter()
-    data = _read(args.mesh, settings.max_upload_bytes)
-    fmt = args.format or args.mesh.suffix.lstrip(".") or "stl"
-    part = load_mesh(data, fmt, args.units, max_faces=settings.max_faces)
-    load_s = time.perf_counter() - start
+    part = _load(args, settings)
+    threads = args.threads or settings.threads
     with _progress(args.quiet) as report:
         doc = plan(
             part,
             request,
             limits=settings.limits(),
-            threads=args.threads or settings.threads,
+            threads=threads,
             progress=report,
-            load_s=load_s,
+            load_s=time.perf_counter() - start,
         )
     console = Console()
     console.print(summary(doc))
@@ -146,7 +202,122 @@ def run_plan(args: argparse.Namespace) -> int:
     if args.output:
         _write(args.output, doc.model_dump_json(indent=1))
         print(f"plan written to {args.output}")
+    stats = _point_cloud(args, part, doc, settings.max_cloud_points, threads)
+    if args.plots:
+        files = {
+            "plan.json": doc.model_dump_json(indent=1).encode(),
+            **plan_plots(part, doc, stats),
+        }
+        if stats is not None:
+            files["point-cloud.json"] = stats.model_dump_json(indent=1).encode()
+        _write_all(args.plots, files)
     return 0
+
+
+def _point_cloud(
+    args: argparse.Namespace, part: Part, doc: PlanDocument, max_points: int, threads: int | None
+) -> CloudStats | None:
+    """Simulate and write the plan's point cloud when asked (--point-cloud); its summary."""
+    if not args.point_cloud:
+        return None
+    start = time.perf_counter()
+    views = explicit_viewpoints(doc.viewpoints)
+    cloud, counts, stats = simulate(
+        part,
+        doc.sensor,
+        views,
+        make_backend(part, doc.rays.backend),
+        doc.target.resolution_mm,
+        max_points=max_points,
+        workers=threads or -1,
+    )
+    try:
+        with args.point_cloud.open("wb") as out:
+            write_ply(out, cloud, counts)
+    except OSError as exc:
+        raise InputError(f"{args.point_cloud}: {exc.strerror or exc}") from None
+    print(
+        f"point cloud written to {args.point_cloud}: {stats.points:,} points, neighbours within "
+        f"{stats.radius_mm:g} mm mean {stats.neighbours_mean:.2f} (median "
+        f"{stats.neighbours_median:g}), mean spacing {_g(stats.spacing_mean_mm)} mm, "
+        f"{time.perf_counter() - start:.1f} s"
+    )
+    return stats
+
+
+def run_study(args: argparse.Namespace) -> int:
+    """Run a resolution sweep or a decimation study; print its rows, write JSON/CSV/plots."""
+    settings = get_settings()
+    request = _request(args)
+    part = _load(args, settings)
+    run = resolution_sweep if args.kind == "resolution" else decimation_study
+    values = args.resolutions if args.kind == "resolution" else args.ratios
+    with _progress(args.quiet) as report:
+        study = run(
+            part,
+            request,
+            values,
+            limits=settings.limits(),
+            threads=args.threads or settings.threads,
+            progress=report,
+        )
+    Console().print(study_table(study))
+    text = study.model_dump_json(indent=1)
+    if args.output:
+        _write(args.output, text)
+        print(f"study written to {args.output}")
+    if args.csv:
+        _write(args.csv, study_csv(study))
+        print(f"rows written to {args.csv}")
+    if args.plots:
+        data = {"study.json": text.encode(), "study.csv": study_csv(study).encode()}
+        _write_all(args.plots, {**data, **study_plots(study)})
+    return 0
+
+
+def study_table(study: Study) -> Table:
+    """The study's rows as a table."""
+    t = study.timings_s
+    table = Table(
+        title=f"vpp study {study.kind} — mesh {study.mesh.id[:12]} ({study.mesh.faces} faces); "
+        f"trace {t.trace_s:.1f} s, {len(t.solve_s)} solves {sum(t.solve_s):.1f} s"
+    )
+    decimation = study.kind == "decimation"
+    heads = ["ratio", "faces"] if decimation else []
+    for head in [*heads, "r̄ mm", "formulation", "#OVP", "coverage area", "met area", "solver"]:
+        table.add_column(head, justify="right")
+    for row in study.rows:
+        extra = (
+            [f"{row.ratio:g}", str(row.planning_faces)] if isinstance(row, DecimationRow) else []
+        )
+        table.add_row(
+            *extra,
+            f"{row.resolution_mm:g}",
+            row.formulation,
+            str(row.viewpoints),
+            f"{row.coverage.area:.2%}",
+            f"{row.resolution.met_area:.2%}",
+            f"{row.solver.status} (gap {_g(row.solver.gap)})",
+        )
+    return table
+
+
+def _load(args: argparse.Namespace, settings: Settings) -> Part:
+    """The mesh file of the command line as a Part, within the settings' limits."""
+    data = _read(args.mesh, settings.max_upload_bytes)
+    fmt = args.format or args.mesh.suffix.lstrip(".") or "stl"
+    return load_mesh(data, fmt, args.units, max_faces=settings.max_faces)
+
+
+def _write_all(folder: Path, files: dict[str, bytes]) -> None:
+    """Write files into `folder` (created), one line saying where."""
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"{folder}: {exc.strerror or exc}") from None
+    for name, data in files.items():
+        _write_bytes(folder / name, data)
+    print(f"{', '.join(files)} written to {folder}")
 
 
 def run_sample(args: argparse.Namespace) -> int:

@@ -14,7 +14,7 @@ from vpp_core.embree import EmbreeBackend, block_directions
 from vpp_core.mesh import Part, load_mesh, part_from_arrays
 from vpp_core.plan import plan
 from vpp_core.pose import Viewpoints, make_viewpoints
-from vpp_core.raster import view_first_hits
+from vpp_core.raster import pixel_scale, view_first_hits
 from vpp_core.rays import Block
 from vpp_core.raytrace import _hull_points, _window, make_backend, trace_counts
 from vpp_core.sensor import Sensor
@@ -30,7 +30,6 @@ overlapping faces: Embree's float32 cannot order them, ~1e-7, and either answer 
 
 def raster_ids(part: Part, sensor: Sensor, views: Viewpoints, j: int, window) -> np.ndarray:
     """The rasteriser's first face per pixel of the window, flattened row-major."""
-    scale = np.array([sensor.fx, sensor.fy, sensor.width_px / 2 - 0.5, sensor.height_px / 2 - 0.5])
     ids, _ = view_first_hits(
         part.vertices.astype(np.float64),
         part.faces.astype(np.int32),
@@ -39,7 +38,7 @@ def raster_ids(part: Part, sensor: Sensor, views: Viewpoints, j: int, window) ->
         views.rotations()[j],
         sensor.pixel_x,
         sensor.pixel_y,
-        scale,
+        pixel_scale(sensor),
         np.array(window, dtype=np.int64),
         sensor.far_mm,
     )
@@ -54,20 +53,30 @@ def embree_ids(embree: EmbreeBackend, sensor: Sensor, views: Viewpoints, j: int,
     return prim
 
 
+def face_in_camera(part: Part, views: Viewpoints, j: int, face: int) -> np.ndarray:
+    """(3, 3) float64 camera-frame corners of `face` seen from view j."""
+    return np.asarray((part.vertices[part.faces[face]] - views.positions[j]) @ views.rotations()[j])
+
+
+def pixel_ray(sensor: Sensor, uv) -> np.ndarray:
+    """(3,) camera-frame direction (x, y, 1) through pixel centre uv (pinhole, SPEC §8)."""
+    return np.array(
+        [
+            (uv[0] - sensor.width_px / 2 + 0.5) / sensor.fx,
+            (uv[1] - sensor.height_px / 2 + 0.5) / sensor.fy,
+            1.0,
+        ]
+    )
+
+
 def edge_distance_px(part: Part, sensor: Sensor, views: Viewpoints, j: int, face: int, uv) -> float:
     """Distance in pixels from pixel centre uv to the nearest edge of `face`'s projection;
     for a face crossing the camera plane, to the nearest of its edges' lines (a lower bound)."""
     if face < 0:
         return math.inf
-    cam = (part.vertices[part.faces[face]] - views.positions[j]) @ views.rotations()[j]
+    cam = face_in_camera(part, views, j, face)
     if (cam[:, 2] <= 0).any():
-        ray = np.array(
-            [
-                (uv[0] - sensor.width_px / 2 + 0.5) / sensor.fx,
-                (uv[1] - sensor.height_px / 2 + 0.5) / sensor.fy,
-                1.0,
-            ]
-        )
+        ray = pixel_ray(sensor, uv)
         ray /= np.linalg.norm(ray)
         sines = [
             abs(np.cross(cam[e], cam[(e + 1) % 3]) @ ray)
@@ -88,16 +97,9 @@ def ray_depth(part: Part, sensor: Sensor, views: Viewpoints, j: int, face: int, 
     """Depth (mm) at which the ray through pixel centre uv meets `face`'s plane."""
     if face < 0:
         return math.inf
-    cam = (part.vertices[part.faces[face]] - views.positions[j]) @ views.rotations()[j]
-    ray = np.array(
-        [
-            (uv[0] - sensor.width_px / 2 + 0.5) / sensor.fx,
-            (uv[1] - sensor.height_px / 2 + 0.5) / sensor.fy,
-            1.0,
-        ]
-    )
+    cam = face_in_camera(part, views, j, face)
     normal = np.cross(cam[1] - cam[0], cam[2] - cam[0])
-    return float(normal @ cam[0] / (normal @ ray))
+    return float(normal @ cam[0] / (normal @ pixel_ray(sensor, uv)))
 
 
 def unexplained(part: Part, sensor: Sensor, views: Viewpoints, j: int, pair, uv) -> float:

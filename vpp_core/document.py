@@ -8,7 +8,7 @@ from pydantic import BaseModel, BeforeValidator, ConfigDict, Field
 
 from vpp_core.diagnostics import Diagnostics
 from vpp_core.metrics import Metrics
-from vpp_core.rays import BackendName
+from vpp_core.rays import DEFAULT_BACKEND, BackendName
 from vpp_core.sensor import Sensor
 
 Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
@@ -80,7 +80,7 @@ class PlanRequest(_Strict):
     candidates: Candidates = Field(default_factory=CandidateGenerator)
     solver: SolverSettings = SolverSettings()
     backend: BackendName = Field(
-        "raster",
+        DEFAULT_BACKEND,
         description="ray backend that computes R: `raster` (z-buffer of face ids at pixel "
         "centres, the fastest) or `embree` (one Embree ray per pixel); they agree but for "
         "pixel centres on triangle edges",

@@ -7,7 +7,7 @@ import math
 import numpy as np
 
 from vpp_core.mesh import Part
-from vpp_core.rays import Block, Hits, RayBackend
+from vpp_core.rays import Block, Hits, PixelHits, RayBackend
 
 CHUNK_RAYS = 1 << 18
 """Rays per task: small enough for cache and memory, big enough to amortise Python."""
@@ -37,13 +37,16 @@ class EmbreeBackend:
 
     def valid_hits(self, block: Block) -> Hits:
         """One ray per pixel through Embree, the checks in numpy; ids repeat (counts None)."""
-        return _valid_faces(self, block, self._normals), None
+        return valid_pixels(self, block, self._normals).faces, None
+
+    def pixel_hits(self, block: Block) -> PixelHits:
+        """The block's valid pixel rays one by one: pixel, face and depth."""
+        return valid_pixels(self, block, self._normals)
 
 
-def _valid_faces(backend: RayBackend, block: Block, normals: np.ndarray) -> np.ndarray:
-    """Face ids (h,) int32 of the valid hits of a block's pixel rays, traced by `first_hits`;
-    tracing stops at t = far, which is exact (a first hit beyond far is invalid whatever lies
-    behind it).
+def valid_pixels(backend: RayBackend, block: Block, normals: np.ndarray) -> PixelHits:
+    """The valid hits of a block's pixel rays, traced by `first_hits`; tracing stops at
+    t = far, which is exact (a first hit beyond far is invalid whatever lies behind it).
 
     `normals` (M, 3) float32 are the part's, converted once. No BLAS here: a float32 matmul
     from a worker thread wakes OpenBLAS's own thread pool, whose spinning threads fight the
@@ -59,7 +62,7 @@ def _valid_faces(backend: RayBackend, block: Block, normals: np.ndarray) -> np.n
     cos = np.einsum("ij,ij->i", normals.take(prim, axis=0), directions.take(hit, axis=0))
     cos_min = math.cos(math.radians(sensor.max_incidence_deg))
     ok = (depth >= sensor.near_mm) & (np.abs(cos, out=cos) >= cos_min * norms.reshape(-1)[hit])
-    return np.asarray(prim[ok])
+    return PixelHits(hit[ok], np.asarray(prim[ok]), depth[ok])
 
 
 def block_directions(block: Block) -> np.ndarray:

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 
@@ -75,8 +75,8 @@ def candidates_for(
     return explicit_viewpoints(spec.viewpoints), info
 
 
-def explicit_viewpoints(items: list[ViewpointIn]) -> Viewpoints:
-    """Viewpoints from explicit {position, gaze, up?} items (mm)."""
+def explicit_viewpoints(items: Sequence[ViewpointIn | CandidateOut]) -> Viewpoints:
+    """Viewpoints from {position, gaze, up?} items (mm): a request's, or a plan's poses."""
     nan = [np.nan] * 3
     return make_viewpoints(
         np.array([v.position for v in items]).reshape(-1, 3),

@@ -30,7 +30,8 @@ from numba import njit
 
 from vpp_core.embree import EmbreeBackend
 from vpp_core.mesh import Part
-from vpp_core.rays import Block, Hits
+from vpp_core.rays import Block, Hits, PixelHits
+from vpp_core.sensor import Sensor
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -88,30 +89,57 @@ class RasterBackend:
 
     def valid_hits(self, block: Block) -> Hits:
         """Faces of the block's valid pixel rays and their counts, by z-buffer (GIL released)."""
-        pixels = (block.rows[1] - block.rows[0]) * (block.cols[1] - block.cols[0])
-        if len(self._faces) > MAX_FACES_PER_PIXEL * pixels:
+        if self._by_rays(block):
             return _count(self.embree.valid_hits(block)[0], len(self._faces))
+        return _valid_counts(*self._draw(block))
+
+    def pixel_hits(self, block: Block) -> PixelHits:
+        """The block's valid pixel rays one by one, from the same z-buffer `valid_hits` counts."""
+        if self._by_rays(block):
+            return self.embree.pixel_hits(block)
+        ids, inv_z, *rest = self._draw(block)
+        pixels = np.flatnonzero(_valid_mask(ids, inv_z, *rest))
+        return PixelHits(pixels, ids.reshape(-1)[pixels], 1.0 / inv_z.reshape(-1)[pixels])
+
+    def _by_rays(self, block: Block) -> bool:
+        """Whether the block has fewer pixels than faces / MAX_FACES_PER_PIXEL (Embree's)."""
+        pixels = (block.rows[1] - block.rows[0]) * (block.cols[1] - block.cols[0])
+        return len(self._faces) > MAX_FACES_PER_PIXEL * pixels
+
+    def _draw(self, block: Block) -> tuple[Any, ...]:
+        """The z-buffer of the block (ids, 1/depth) and the rest of the validity checks' args."""
         sensor = block.sensor
-        scale = np.array(
-            [sensor.fx, sensor.fy, sensor.width_px / 2 - 0.5, sensor.height_px / 2 - 0.5]
-        )
         window = np.array([*block.rows, *block.cols], dtype=np.int64)
-        cos_min = math.cos(math.radians(sensor.max_incidence_deg))
-        return view_valid_faces(
+        rotation = np.ascontiguousarray(block.rotation, dtype=np.float64)
+        ids, inv_z = view_first_hits(
             self._vertices,
             self._faces,
             self._labels,
-            self._normals,
             np.asarray(block.position, dtype=np.float64),
-            np.ascontiguousarray(block.rotation, dtype=np.float64),
+            rotation,
             sensor.pixel_x,
             sensor.pixel_y,
-            scale,
+            pixel_scale(sensor),
+            window,
+            sensor.far_mm,
+        )
+        cos_min = math.cos(math.radians(sensor.max_incidence_deg))
+        return (
+            ids,
+            inv_z,
+            self._normals,
+            rotation,
+            sensor.pixel_x,
+            sensor.pixel_y,
             window,
             sensor.near_mm,
-            sensor.far_mm,
             cos_min,
         )
+
+
+def pixel_scale(sensor: Sensor) -> np.ndarray:
+    """(4,) fx, fy, cx, cy: pixel column = x fx + cx and row = y fy + cy of image-plane (x, y)."""
+    return np.array([sensor.fx, sensor.fy, sensor.width_px / 2 - 0.5, sensor.height_px / 2 - 0.5])
 
 
 MORTON_BITS = 10
@@ -140,32 +168,6 @@ def spatial_order(
     new_vertices = np.zeros((len(vertices), 3))
     new_vertices[renumber[used]] = vertices[used]
     return order, new_vertices, renumber[ordered].astype(np.int32)
-
-
-@kernel
-def view_valid_faces(
-    vertices: np.ndarray,
-    faces: np.ndarray,
-    labels: np.ndarray,
-    normals: np.ndarray,
-    position: np.ndarray,
-    rotation: np.ndarray,
-    px: np.ndarray,
-    py: np.ndarray,
-    scale: np.ndarray,
-    window: np.ndarray,
-    near: float,
-    far: float,
-    cos_min: float,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Faces (k,) int32 seen by valid pixel rays of one view's window (SPEC §3), and how many
-    rays each (k,) int32. normals (L, 3) float64 world unit normals indexed by label; the rest
-    as `view_first_hits`.
-    """
-    ids, inv_z = view_first_hits(
-        vertices, faces, labels, position, rotation, px, py, scale, window, far
-    )
-    return _valid_counts(ids, inv_z, normals, rotation, px, py, window, near, cos_min)
 
 
 @kernel
@@ -203,9 +205,10 @@ def view_first_hits(
         if front == 0:
             continue
         if front == 3:
-            us = (cam[i, 5], cam[j, 5], cam[k, 5])
-            vs = (cam[i, 6], cam[j, 6], cam[k, 6])
-            if _no_pixel_centre(us, vs, window):
+            box = _bounds(
+                (cam[i, 5], cam[j, 5], cam[k, 5]), (cam[i, 6], cam[j, 6], cam[k, 6]), window
+            )
+            if box[0] < 0:
                 continue
             xs = (cam[i, 3], cam[j, 3], cam[k, 3])
             ys = (cam[i, 4], cam[j, 4], cam[k, 4])
@@ -216,13 +219,25 @@ def view_first_hits(
         if not math.isfinite(plane[0] + plane[1] + plane[2]):
             continue  # plane through the camera: seen edge-on
         if front == 3:
-            _fill(xs, ys, plane, labels[f], px, py, scale, window, inv_z, ids)
+            _fill(xs, ys, box, plane, labels[f], px, py, scale, window, inv_z, ids)
             continue
         n = _clip(a, b, c, poly)
         for t in range(1, n - 1):
             xs = (poly[0, 0] / poly[0, 2], poly[t, 0] / poly[t, 2], poly[t + 1, 0] / poly[t + 1, 2])
             ys = (poly[0, 1] / poly[0, 2], poly[t, 1] / poly[t, 2], poly[t + 1, 1] / poly[t + 1, 2])
-            _fill(xs, ys, plane, labels[f], px, py, scale, window, inv_z, ids)
+            us = (
+                xs[0] * scale[0] + scale[2],
+                xs[1] * scale[0] + scale[2],
+                xs[2] * scale[0] + scale[2],
+            )
+            vs = (
+                ys[0] * scale[1] + scale[3],
+                ys[1] * scale[1] + scale[3],
+                ys[2] * scale[1] + scale[3],
+            )
+            box = _bounds(us, vs, window)
+            if box[0] >= 0:
+                _fill(xs, ys, box, plane, labels[f], px, py, scale, window, inv_z, ids)
     return ids, inv_z
 
 
@@ -247,19 +262,6 @@ def _to_view(
 
 
 @inline
-def _no_pixel_centre(us: Triple, vs: Triple, window: np.ndarray) -> bool:
-    """Whether the bounding box of a triangle with pixel coordinates (us, vs) holds no pixel
-    centre of the window: the cheap test that drops sub-pixel and off-window faces."""
-    r_lo = np.ceil(min(vs[0], vs[1], vs[2]) - SCAN_MARGIN_PX)
-    r_hi = np.floor(max(vs[0], vs[1], vs[2]) + SCAN_MARGIN_PX)
-    if r_lo > r_hi or r_hi < window[0] or r_lo >= window[1]:
-        return True
-    c_lo = np.ceil(min(us[0], us[1], us[2]) - SCAN_MARGIN_PX)
-    c_hi = np.floor(max(us[0], us[1], us[2]) + SCAN_MARGIN_PX)
-    return bool(c_lo > c_hi or c_hi < window[2] or c_lo >= window[3])
-
-
-@inline
 def _inverse_depth_plane(a: Triple, b: Triple, c: Triple) -> Triple:
     """(A, B, C) with 1/z = A x + B y + C on the ray (x, y, 1) through plane a, b, c (camera)."""
     nx = (b[1] - a[1]) * (c[2] - a[2]) - (b[2] - a[2]) * (c[1] - a[1])
@@ -270,19 +272,17 @@ def _inverse_depth_plane(a: Triple, b: Triple, c: Triple) -> Triple:
 
 
 @inline
-def _bounds(
-    xs: Triple,
-    ys: Triple,
-    scale: np.ndarray,
-    window: np.ndarray,
-) -> tuple[int, int, int, int]:
-    """Rows r0..r1 and columns c0..c1 of the window's pixel centres in the triangle's bounding
-    box; r0 = -1 when there are none."""
-    r0 = _first(min(ys[0], ys[1], ys[2]) * scale[1] + scale[3], window[0])
-    r1 = _last(max(ys[0], ys[1], ys[2]) * scale[1] + scale[3], window[1] - 1)
-    c0 = _first(min(xs[0], xs[1], xs[2]) * scale[0] + scale[2], window[2])
-    c1 = _last(max(xs[0], xs[1], xs[2]) * scale[0] + scale[2], window[3] - 1)
-    if r0 > r1 or c0 > c1:
+def _bounds(us: Triple, vs: Triple, window: np.ndarray) -> tuple[int, int, int, int]:
+    """Rows r0..r1 and columns c0..c1 of the window's pixel centres in the bounding box of a
+    triangle with pixel coordinates (us, vs); r0 = -1 when there are none (sub-pixel and
+    off-window faces: the cheap test that drops most faces of fine meshes)."""
+    r0 = _first(min(vs[0], vs[1], vs[2]), window[0])
+    r1 = _last(max(vs[0], vs[1], vs[2]), window[1] - 1)
+    if r0 > r1:
+        return -1, -1, -1, -1
+    c0 = _first(min(us[0], us[1], us[2]), window[2])
+    c1 = _last(max(us[0], us[1], us[2]), window[3] - 1)
+    if c0 > c1:
         return -1, -1, -1, -1
     return r0, r1, c0, c1
 
@@ -310,6 +310,7 @@ def _clip(a: Triple, b: Triple, c: Triple, poly: np.ndarray) -> int:
 def _fill(
     xs: Triple,
     ys: Triple,
+    box: tuple[int, int, int, int],
     plane: Triple,
     face: int,
     px: np.ndarray,
@@ -319,16 +320,17 @@ def _fill(
     inv_z: np.ndarray,
     ids: np.ndarray,
 ) -> None:
-    """Z-buffer one triangle, image-plane vertices (xs, ys), into the window's inv_z and ids.
+    """Z-buffer one triangle, image-plane vertices (xs, ys), pixel centres in `box` (_bounds),
+    into the window's inv_z and ids.
 
     Inside tests run in image-plane coordinates (x/z, y/z) against the pixel rays px, py. On
     each row the inside pixels form one run (each edge function, rounding included, is
     monotonic in x); the run is found from the edges' crossings by testing its ends only.
     """
     area = (xs[1] - xs[0]) * (ys[2] - ys[0]) - (ys[1] - ys[0]) * (xs[2] - xs[0])
-    r0, r1, c0, c1 = _bounds(xs, ys, scale, window)
-    if area == 0.0 or not math.isfinite(area) or r0 < 0:
+    if area == 0.0 or not math.isfinite(area):
         return
+    r0, r1, c0, c1 = box
     sign = 1.0 if area > 0 else -1.0
     e0 = _edge_setup(xs[0], ys[0], xs[1], ys[1], sign)
     e1 = _edge_setup(xs[1], ys[1], xs[2], ys[2], sign)
@@ -500,6 +502,40 @@ def _count(ids: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
     return faces, counts[faces]
 
 
+@inline
+def _is_valid(
+    f: int,
+    inv_z: float,
+    normals: np.ndarray,
+    rotation: np.ndarray,
+    row: Triple,
+    x: float,
+    y: float,
+    near: float,
+    cos2: float,
+) -> bool:
+    """SPEC §3 on one pixel ray (x, y, 1) that first hits face f at 1/depth inv_z: depth >= near
+    and |cos incidence| >= cos_min (cos2 = cos_min²); row = rotation @ (0, y, 1)."""
+    if f < 0 or inv_z * near > 1.0:
+        return False
+    dot = (
+        normals[f, 0] * (rotation[0, 0] * x + row[0])
+        + normals[f, 1] * (rotation[1, 0] * x + row[1])
+        + normals[f, 2] * (rotation[2, 0] * x + row[2])
+    )
+    return bool(dot * dot >= cos2 * (x * x + y * y + 1.0))
+
+
+@inline
+def _row_direction(rotation: np.ndarray, y: float) -> Triple:
+    """rotation @ (0, y, 1): the part of a pixel ray's world direction shared by its row."""
+    return (
+        rotation[0, 1] * y + rotation[0, 2],
+        rotation[1, 1] * y + rotation[1, 2],
+        rotation[2, 1] * y + rotation[2, 2],
+    )
+
+
 @kernel
 def _valid_counts(
     ids: np.ndarray,
@@ -518,22 +554,35 @@ def _valid_counts(
     cos2 = cos_min * cos_min
     for i in range(h):
         y = float(py[window[0] + i])
-        row = (
-            rotation[0, 1] * y + rotation[0, 2],
-            rotation[1, 1] * y + rotation[1, 2],
-            rotation[2, 1] * y + rotation[2, 2],
-        )
+        row = _row_direction(rotation, y)
         for j in range(w):
-            f = ids[i, j]
-            if f < 0 or inv_z[i, j] * near > 1.0:
-                continue
             x = float(px[window[2] + j])
-            dot = (
-                normals[f, 0] * (rotation[0, 0] * x + row[0])
-                + normals[f, 1] * (rotation[1, 0] * x + row[1])
-                + normals[f, 2] * (rotation[2, 0] * x + row[2])
-            )
-            if dot * dot >= cos2 * (x * x + y * y + 1.0):
-                counts[f] += 1
+            if _is_valid(ids[i, j], inv_z[i, j], normals, rotation, row, x, y, near, cos2):
+                counts[ids[i, j]] += 1
     faces = np.flatnonzero(counts).astype(np.int32)
     return faces, counts[faces]
+
+
+@kernel
+def _valid_mask(
+    ids: np.ndarray,
+    inv_z: np.ndarray,
+    normals: np.ndarray,
+    rotation: np.ndarray,
+    px: np.ndarray,
+    py: np.ndarray,
+    window: np.ndarray,
+    near: float,
+    cos_min: float,
+) -> np.ndarray:
+    """(h, w) bool: the window's pixels whose first hit is valid (as _valid_counts counts)."""
+    h, w = ids.shape
+    out = np.zeros((h, w), np.bool_)
+    cos2 = cos_min * cos_min
+    for i in range(h):
+        y = float(py[window[0] + i])
+        row = _row_direction(rotation, y)
+        for j in range(w):
+            x = float(px[window[2] + j])
+            out[i, j] = _is_valid(ids[i, j], inv_z[i, j], normals, rotation, row, x, y, near, cos2)
+    return out

@@ -9,7 +9,7 @@ parameter t is the depth.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal, Protocol
+from typing import Literal, Protocol, get_args
 
 import numpy as np
 
@@ -17,6 +17,9 @@ from vpp_core.sensor import Sensor
 
 BackendName = Literal["raster", "embree"]
 """The ray backends (vpp_core.raytrace.make_backend); the first is the default."""
+
+DEFAULT_BACKEND: BackendName = get_args(BackendName)[0]
+"""The fastest backend (docs/raytrace.md): the CLI's and the plan request's default."""
 
 
 @dataclass(frozen=True)
@@ -35,6 +38,15 @@ Hits = tuple[np.ndarray, np.ndarray | None]
 (then each id stands for one ray and ids repeat)."""
 
 
+@dataclass(frozen=True)
+class PixelHits:
+    """A block's valid pixel rays one by one (the point cloud's source)."""
+
+    pixels: np.ndarray  # (h,) int64 row-major index of the pixel within the block
+    faces: np.ndarray  # (h,) int32 face hit
+    depth: np.ndarray  # (h,) float camera-frame z of the hit, mm (ray (x, y, 1): t = z)
+
+
 class RayBackend(Protocol):
     """First hits over one mesh: of arbitrary rays, and of the pixel rays of a camera."""
 
@@ -49,4 +61,8 @@ class RayBackend(Protocol):
 
     def valid_hits(self, block: Block) -> Hits:
         """The faces hit by valid pixel rays of the block (SPEC §3), before duplicate merging."""
+        ...
+
+    def pixel_hits(self, block: Block) -> PixelHits:
+        """The valid pixel rays of the block one by one, the same rays `valid_hits` counts."""
         ...

@@ -23,7 +23,7 @@ from vpp_core.errors import VppError
 from vpp_core.mesh import Part
 from vpp_core.pose import Viewpoints
 from vpp_core.raster import RasterBackend
-from vpp_core.rays import BackendName, Block, Hits, RayBackend
+from vpp_core.rays import DEFAULT_BACKEND, BackendName, Block, Hits, RayBackend
 from vpp_core.sensor import Sensor
 
 Progress = Callable[[int], None]
@@ -31,9 +31,7 @@ Progress = Callable[[int], None]
 
 
 BACKENDS: tuple[BackendName, ...] = get_args(BackendName)
-"""Ray backends by name; the first is the default (the fastest, see bench/raytrace.py)."""
-
-DEFAULT_BACKEND: BackendName = BACKENDS[0]
+"""Ray backends by name; the first, DEFAULT_BACKEND, is the fastest (bench/raytrace.py)."""
 
 
 def make_backend(part: Part, name: str | None = None) -> RayBackend:
@@ -122,6 +120,18 @@ def trace_counts(
     pixels = len(views) * sensor.n_pixels
     rays = sum(c.size for c in tasks)
     return Trace(counts, rays, pixels, backend.name, time.perf_counter() - start)
+
+
+def view_blocks(
+    part: Part, sensor: Sensor, views: Viewpoints, block_rays: int
+) -> Iterator[tuple[int, Block]]:
+    """(view index, Block) over each view's pixels that can reach the part, view after view."""
+    hull = _hull_points(part.vertices)
+    rotations = views.rotations()
+    for j in range(len(views)):
+        window = _window(sensor, views.positions[j], rotations[j], hull)
+        for c in _chunks(j, *window, block_rays):
+            yield j, Block(sensor, views.positions[j], rotations[j], c.rows, c.cols)
 
 
 HULL_CELLS = 32

@@ -23,6 +23,8 @@ class Settings(BaseSettings):
     """Most candidate viewpoints in one plan."""
     max_rays: int = Field(20_000_000_000, gt=0)
     """Most rays (candidates × pixels) in one plan."""
+    max_cloud_points: int = Field(50_000_000, gt=0)
+    """Most points of a simulated point cloud (about 16 bytes each in memory and in the PLY)."""
     threads: int | None = Field(None, gt=0)
     """Threads for ray tracing and the solver per process; None = all cores it may use."""
 

@@ -1,0 +1,282 @@
+"""PNG pictures of plans and studies (matplotlib, headless: Figure + Agg, no pyplot state).
+
+Every function takes documents or arrays and returns PNG bytes; the shells decide where
+they go. Units are on every axis; the target resolution is marked where it applies.
+"""
+
+from __future__ import annotations
+
+import io
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+from vpp_core.candidates import planning_mesh
+from vpp_core.document import PlanDocument
+from vpp_core.mesh import Part
+from vpp_core.metrics import Histogram
+from vpp_core.pointcloud import CloudStats
+from vpp_core.studies import DecimationRow, Study, SweepRow
+
+STYLE = {"density": ("tab:red", "-", "o"), "visibility": ("tab:blue", "--", "*")}
+"""Colour, line and marker per formulation (the paper's: red = S, blue = V)."""
+DPI = 110
+MAX_DRAWN_FACES = 20_000
+"""The 3D view draws a decimated copy of bigger parts (matplotlib draws each polygon)."""
+
+
+def _png(fig: Figure) -> bytes:
+    """The figure as PNG bytes."""
+    FigureCanvasAgg(fig)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=DPI, bbox_inches="tight")
+    return buf.getvalue()
+
+
+def sweep_png(study: Study) -> bytes:
+    """#OVP against target resolution for both formulations (paper Fig. 3 right)."""
+    fig = Figure(figsize=(6.4, 4.2))
+    ax = fig.add_subplot()
+    for name, (colour, line, marker) in STYLE.items():
+        rows = sorted((r for r in study.rows if r.formulation == name), key=_resolution)
+        x = [_resolution(r) for r in rows]
+        y = [r.viewpoints for r in rows]
+        ax.plot(x, y, line, color=colour, marker=marker, label=name)
+        open_ = [k for k, r in enumerate(rows) if r.solver.status != "optimal"]
+        if open_:
+            ax.plot(
+                [x[k] for k in open_],
+                [y[k] for k in open_],
+                "s",
+                mfc="none",
+                color="k",
+                label="not proven optimal" if name == "density" else None,
+            )
+    ax.axvline(study.request.target.resolution_mm, color="grey", ls=":", label="request target")
+    ax.set_xlabel("target resolution r̄ (mm)")
+    ax.set_ylabel("selected viewpoints (#OVP)")
+    ax.set_title(_title("resolution sweep", study))
+    ax.grid(alpha=0.3)
+    ax.legend()
+    return _png(fig)
+
+
+def decimation_png(study: Study) -> bytes:
+    """Coverage and resolution met on the original against the planning mesh's faces
+    (paper Fig. 3 left): solid = density, dashed = visibility."""
+    fig = Figure(figsize=(10, 4.2))
+    cover_ax, met_ax = fig.subplots(1, 2)
+    for name, (colour, line, marker) in STYLE.items():
+        rows = sorted(
+            (r for r in study.rows if r.formulation == name),
+            key=lambda r: getattr(r, "planning_faces", 0),
+        )
+        x = [getattr(r, "planning_faces", 0) for r in rows]
+        cover_ax.plot(x, [100 * r.coverage.area for r in rows], line, color=colour, marker=marker)
+        met_ax.plot(
+            x,
+            [100 * r.resolution.met_area for r in rows],
+            line,
+            color=colour,
+            marker=marker,
+            label=name,
+        )
+        for xi, r in zip(x, rows, strict=True):
+            cover_ax.annotate(
+                str(r.viewpoints),
+                (xi, 100 * r.coverage.area),
+                fontsize=7,
+                color=colour,
+                textcoords="offset points",
+                xytext=(3, 3),
+            )
+    target = study.request.target.resolution_mm
+    cover_ax.set_ylabel("area seen on the original (%)")
+    met_ax.set_ylabel(f"area at r* ≤ {target:g} mm on the original (%)")
+    for ax in (cover_ax, met_ax):
+        ax.set_xscale("log")
+        ax.set_xlabel("faces of the planning mesh")
+        ax.grid(alpha=0.3, which="both")
+    cover_ax.set_title("coverage (numbers: #OVP)")
+    met_ax.set_title("resolution met")
+    met_ax.legend()
+    fig.suptitle(_title("decimation study", study))
+    return _png(fig)
+
+
+def histogram_png(
+    histograms: Sequence[tuple[str, Histogram]], target_mm: float, title: str = ""
+) -> bytes:
+    """Area per achieved-resolution bin, one series per (formulation, histogram), with the
+    target marked (paper Fig. 5); overflow and unseen area in the legend."""
+    fig = Figure(figsize=(6.4, 4.2))
+    ax = fig.add_subplot()
+    for name, h in histograms:
+        edges = np.asarray(h.edges_mm)
+        total = sum(h.area_mm2) + h.overflow_area_mm2 + h.unseen_area_mm2 or 1.0
+        colour = STYLE.get(name, ("tab:grey", "-", "o"))[0]
+        share = 100 * np.asarray(h.area_mm2) / total
+        extra = 100 * (h.overflow_area_mm2 / total), 100 * (h.unseen_area_mm2 / total)
+        ax.stairs(
+            share,
+            edges,
+            fill=True,
+            alpha=0.45,
+            color=colour,
+            label=f"{name} (beyond {edges[-1]:g} mm: {extra[0]:.1f} %, unseen {extra[1]:.1f} %)",
+        )
+    ax.axvline(target_mm, color="k", lw=1.5, label=f"target r̄ = {target_mm:g} mm")
+    ax.set_xlabel("achieved resolution r* per face (mm)")
+    ax.set_ylabel("share of the counted area (%)")
+    ax.set_title(title or "resolution per surface element")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    return _png(fig)
+
+
+def neighbours_png(stats: CloudStats, title: str = "") -> bytes:
+    """Distribution of neighbour counts within r̄ over the simulated point cloud (Fig. 4)."""
+    fig = Figure(figsize=(6.4, 4.2))
+    ax = fig.add_subplot()
+    counts = np.asarray(stats.histogram, dtype=float)
+    share = 100 * counts / max(stats.points, 1)
+    ax.bar(np.arange(len(share)), share, width=0.9, color="tab:red")
+    ax.axvline(stats.neighbours_mean, color="k", ls="--", label=f"mean {stats.neighbours_mean:.2f}")
+    ax.set_xlabel(f"neighbours within r̄ = {stats.radius_mm:g} mm (points)")
+    ax.set_ylabel("share of the points (%)")
+    spacing = f", mean spacing {stats.spacing_mean_mm:.4g} mm" if stats.spacing_mean_mm else ""
+    ax.set_title(title or f"simulated point cloud: {stats.points:,} points{spacing}")
+    ax.grid(alpha=0.3)
+    ax.legend()
+    return _png(fig)
+
+
+def cameras_png(part: Part, doc: PlanDocument) -> bytes:
+    """Left: the part and the selected cameras' depth-of-field frusta, numbered in visiting
+    order, with the tour. Right: close-up of the part, each camera's gaze and aim point."""
+    fig = Figure(figsize=(13, 6.2))
+    overview = fig.add_subplot(1, 2, 1, projection="3d")
+    close = fig.add_subplot(1, 2, 2, projection="3d")
+    mesh = part.trimesh()
+    if len(mesh.faces) > MAX_DRAWN_FACES:
+        mesh = planning_mesh(part, MAX_DRAWN_FACES / len(mesh.faces))
+    frusta = _frusta(doc)
+    positions = np.array([vp.position for vp in doc.viewpoints]).reshape(-1, 3)
+    gazes = np.array([vp.gaze for vp in doc.viewpoints]).reshape(-1, 3)
+    aims = positions + gazes * doc.sensor.working_distance
+    for ax in (overview, close):
+        _draw_part(ax, mesh)
+    _draw_lines(overview, frusta, "tab:red", 0.6)
+    if len(positions):
+        overview.plot(*positions.T, color="tab:green", lw=1.2, marker="o", ms=3, label="tour")
+        overview.legend(loc="upper left")
+    for k, (p, a) in enumerate(zip(positions, aims, strict=True)):
+        overview.text(*p, str(k + 1), color="tab:red", fontsize=9, weight="bold")
+        close.text(*a, str(k + 1), color="tab:red", fontsize=9, weight="bold")
+    # the gaze of each camera, from a part's size away up to its aim point on the part
+    lo, hi = mesh.bounds
+    size = float(np.linalg.norm(hi - lo))
+    _draw_lines(
+        close, [(a - g * 0.6 * size, a) for a, g in zip(aims, gazes, strict=True)], "tab:red", 1.0
+    )
+    _fit(overview, np.vstack([mesh.vertices, positions, np.asarray(frusta).reshape(-1, 3)]))
+    _fit(close, np.vstack([mesh.vertices, aims - gazes * 0.6 * size]))
+    overview.set_title(
+        f"{len(doc.viewpoints)} viewpoints ({doc.target.formulation}, r̄ = "
+        f"{doc.target.resolution_mm:g} mm): depth-of-field frusta, visiting order"
+    )
+    close.set_title("close-up: gaze and aim point of each viewpoint")
+    return _png(fig)
+
+
+def _frusta(doc: PlanDocument) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Line segments of each selected camera's frustum between its near and far planes."""
+    sensor, lines = doc.sensor, []
+    tx, ty = np.tan(np.radians(sensor.fov_x_deg) / 2), np.tan(np.radians(sensor.fov_y_deg) / 2)
+    corners = np.array([[-tx, -ty, 1], [tx, -ty, 1], [tx, ty, 1], [-tx, ty, 1]])
+    for vp in doc.viewpoints:
+        c2w = np.asarray(vp.camera_to_world)
+        near, far = (
+            corners * d @ c2w[:3, :3].T + c2w[:3, 3] for d in (sensor.near_mm, sensor.far_mm)
+        )
+        for q in (near, far):
+            lines += [(q[i], q[(i + 1) % 4]) for i in range(4)]
+        lines += [(near[i], far[i]) for i in range(4)]
+    return lines
+
+
+def _draw_part(ax: Any, mesh: Any) -> None:
+    """The mesh, grey with a fixed directional light."""
+    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+
+    light = np.abs(mesh.face_normals @ np.array([0.3, 0.4, 0.87]))
+    shade = (0.35 + 0.6 * light)[:, None] * np.array([0.75, 0.75, 0.78])
+    ax.add_collection3d(Poly3DCollection(mesh.triangles, facecolors=shade, linewidths=0))
+
+
+def _draw_lines(
+    ax: Any, lines: Sequence[tuple[np.ndarray, np.ndarray]], colour: str, lw: float
+) -> None:
+    """Line segments in 3D."""
+    from mpl_toolkits.mplot3d.art3d import Line3DCollection
+
+    if len(lines):
+        ax.add_collection3d(Line3DCollection(lines, colors=colour, linewidths=lw, alpha=0.7))
+
+
+def _fit(ax: Any, points: np.ndarray) -> None:
+    """Axis limits around the points, true aspect, labelled in mm."""
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    ax.set_xlim(lo[0], hi[0])
+    ax.set_ylim(lo[1], hi[1])
+    ax.set_zlim(lo[2], hi[2])
+    ax.set_box_aspect(np.maximum(hi - lo, 1e-9 + 0.02 * (hi - lo).max()))
+    ax.set_xlabel("x (mm)")
+    ax.set_ylabel("y (mm)")
+    ax.set_zlabel("z (mm)")
+
+
+def _resolution(row: SweepRow | DecimationRow) -> float:
+    return row.resolution_mm
+
+
+def _title(what: str, study: Study) -> str:
+    return f"{what}: mesh {study.mesh.id[:12]} ({study.mesh.faces:,} faces)"
+
+
+def plan_plots(part: Part, doc: PlanDocument, cloud: CloudStats | None = None) -> dict[str, bytes]:
+    """A plan's pictures by file name: histogram, cameras and, with a point cloud, neighbours."""
+    pngs = {
+        "histogram.png": histogram_png(
+            [(doc.target.formulation, doc.metrics.resolution.histogram)],
+            doc.target.resolution_mm,
+            f"resolution per surface element: {len(doc.viewpoints)} viewpoints",
+        ),
+        "cameras.png": cameras_png(part, doc),
+    }
+    if cloud is not None:
+        pngs["neighbours.png"] = neighbours_png(cloud)
+    return pngs
+
+
+def study_plots(study: Study) -> dict[str, bytes]:
+    """A study's pictures by file name: its curves and, per resolution, the two histograms."""
+    if study.kind == "decimation":
+        pngs = {"decimation.png": decimation_png(study)}
+    else:
+        pngs = {"sweep.png": sweep_png(study)}
+    for key in sorted({(getattr(r, "ratio", None), _resolution(r)) for r in study.rows}, key=str):
+        rows = [r for r in study.rows if (getattr(r, "ratio", None), _resolution(r)) == key]
+        ratio, res = key
+        name = f"histogram-{res:g}mm.png" if ratio is None else f"histogram-ratio-{ratio:g}.png"
+        where = f"ratio {ratio:g}, " if ratio is not None else ""
+        pngs[name] = histogram_png(
+            [(r.formulation, r.histogram) for r in rows],
+            res,
+            f"resolution per surface element ({where}r̄ = {res:g} mm): "
+            + ", ".join(f"{r.formulation} {r.viewpoints} views" for r in rows),
+        )
+    return pngs

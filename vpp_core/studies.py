@@ -1,0 +1,331 @@
+"""The paper's studies (SPEC §5, Fig. 3): viewpoints against the target resolution from one R,
+and plans made on decimated meshes judged on the original.
+
+Each row is what `vpp plan` would report for that resolution or planning mesh: the same
+candidates, the same solver, the selection in visiting order (`poses`), so a row can be
+checked against a fresh plan or an independent re-trace of its poses.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from typing import Literal
+
+import numpy as np
+from pydantic import BaseModel, Field
+
+from vpp_core.candidates import planning_mesh
+from vpp_core.density import CoverModel, Formulation, cover_model
+from vpp_core.document import (
+    CandidateGenerator,
+    MeshInfo,
+    PlanDocument,
+    PlanRequest,
+    Timings,
+    ViewpointOut,
+)
+from vpp_core.errors import VppError
+from vpp_core.mesh import Part, part_from_arrays
+from vpp_core.metrics import Histogram, evaluate
+from vpp_core.partial import PartialCover
+from vpp_core.plan import Limits, candidates_for, check_limits, check_request, document, solve
+from vpp_core.raytrace import Trace, make_backend, trace_counts
+
+DEFAULT_LIMITS = Limits()
+FORMULATIONS: tuple[Formulation, ...] = ("density", "visibility")
+Progress = Callable[[str, int, int], None]
+"""progress(stage, done, total)."""
+
+
+class RowCoverage(BaseModel):
+    """Fractions of the (original) part's counted faces and area seen by ≥ 1 selected view."""
+
+    faces: float
+    area: float
+
+
+class RowResolution(BaseModel):
+    """Fractions of counted faces and area whose achieved resolution meets the target."""
+
+    met_faces: float
+    met_area: float
+
+
+class RowSolver(BaseModel):
+    """How the cover was solved: `optimal` means the count is proven minimal."""
+
+    status: str
+    gap: float | None
+
+
+class StudyRow(BaseModel):
+    """One (resolution or ratio, formulation) of a study; figures on the original mesh."""
+
+    formulation: Formulation
+    viewpoints: int = Field(description="number of selected viewpoints (#OVP)")
+    coverage: RowCoverage
+    resolution: RowResolution
+    solver: RowSolver
+    histogram: Histogram
+    poses: list[ViewpointOut] = Field(description="the selected viewpoints, in visiting order")
+
+
+class SweepRow(StudyRow):
+    """A row of the resolution sweep."""
+
+    resolution_mm: float
+
+
+class DecimationRow(StudyRow):
+    """A row of the decimation study: candidates, R and cover on the decimated mesh."""
+
+    ratio: float
+    resolution_mm: float
+    planning_faces: int = Field(description="faces of the decimated mesh planned on")
+
+
+class StudyTimings(BaseModel):
+    """Wall seconds: tracing (all of it) and each solve, in row order."""
+
+    trace_s: float
+    solve_s: list[float]
+    total_s: float
+
+
+class Study(BaseModel):
+    """A study's document: `{kind, rows}` plus what it was run on."""
+
+    format: Literal["vpp-study/1"] = "vpp-study/1"
+    kind: Literal["resolution", "decimation"]
+    mesh: MeshInfo
+    request: PlanRequest
+    rows: list[SweepRow] | list[DecimationRow]
+    timings_s: StudyTimings
+
+
+def _row_fields(doc: PlanDocument) -> dict[str, object]:
+    """The common row fields of a plan document's selection."""
+    m = doc.metrics
+    return dict(
+        formulation=doc.target.formulation,
+        viewpoints=len(doc.viewpoints),
+        coverage=RowCoverage(faces=m.coverage.faces, area=m.coverage.area),
+        resolution=RowResolution(met_faces=m.resolution.met_faces, met_area=m.resolution.met_area),
+        solver=RowSolver(status=doc.solver.status, gap=doc.solver.gap),
+        histogram=m.resolution.histogram,
+        poses=doc.viewpoints,
+    )
+
+
+def _mesh_info(part: Part) -> MeshInfo:
+    return MeshInfo(
+        id=part.id,
+        faces=part.n_faces,
+        area_mm2=part.area_mm2,
+        counted_faces=int(part.counted.sum()),
+        warnings=list(part.warnings),
+    )
+
+
+class _Solver:
+    """Covers of one R at a resolution and formulation, as `plan` solves them, timed."""
+
+    def __init__(self, part: Part, trace: Trace, threads: int | None) -> None:
+        self.part, self.trace, self.threads = part, trace, threads
+        self.seconds: list[float] = []
+        self._visibility: dict[float, PartialCover] = {}
+
+    def cover(self, request: PlanRequest) -> tuple[PartialCover, CoverModel]:
+        """The cover for `request.target` on this R (visibility solved once: V has no r̄)."""
+        t = request.target
+        start = time.perf_counter()
+        model = cover_model(
+            self.trace.counts, self.part.areas, self.part.counted, t.resolution_mm, t.formulation
+        )
+        if t.formulation == "visibility" and t.min_coverage in self._visibility:
+            cover = self._visibility[t.min_coverage]
+        else:
+            cover = solve(model, self.part.areas, t, request.solver, self.threads)
+            if t.formulation == "visibility":
+                self._visibility[t.min_coverage] = cover
+        self.seconds.append(round(time.perf_counter() - start, 4))
+        return cover, model
+
+
+def _with_target(request: PlanRequest, resolution: float, formulation: Formulation) -> PlanRequest:
+    target = request.target.model_copy(
+        update={"resolution_mm": resolution, "formulation": formulation}
+    )
+    return request.model_copy(update={"target": target})
+
+
+def resolution_sweep(
+    part: Part,
+    request: PlanRequest,
+    resolutions: Sequence[float],
+    *,
+    limits: Limits = DEFAULT_LIMITS,
+    threads: int | None = None,
+    progress: Progress | None = None,
+) -> Study:
+    """#OVP against r̄ (mm) for both formulations from one trace (paper Fig. 3 right)."""
+    start = time.perf_counter()
+    _check_values(resolutions, "resolutions", upper=None)
+    check_request(request, limits)
+    backend = make_backend(part, request.backend)
+    views, info = candidates_for(part, request, backend)
+    check_limits(len(views), request.sensor.n_pixels, limits)
+    _report(progress, "trace", 0, len(views))
+    trace = trace_counts(part, request.sensor, views, backend=backend, threads=threads)
+    solver = _Solver(part, trace, threads)
+    rows: list[SweepRow] = []
+    for formulation in FORMULATIONS:
+        for r in resolutions:
+            _report(progress, "solve", len(rows), 2 * len(resolutions))
+            req = _with_target(request, r, formulation)
+            cover, model = solver.cover(req)
+            doc = document(part, req, views, info, trace, model, cover, Timings())
+            rows.append(SweepRow(resolution_mm=r, **_row_fields(doc)))
+    return Study(
+        kind="resolution",
+        mesh=_mesh_info(part),
+        request=request,
+        rows=rows,
+        timings_s=StudyTimings(
+            trace_s=round(trace.seconds, 4),
+            solve_s=solver.seconds,
+            total_s=round(time.perf_counter() - start, 4),
+        ),
+    )
+
+
+def decimated_part(part: Part, ratio: float) -> Part:
+    """The part quadric-decimated to about `ratio` of its faces (itself at ratio 1)."""
+    if ratio >= 1:
+        return part
+    mesh = planning_mesh(part, ratio)
+    return part_from_arrays(mesh.vertices, mesh.faces)
+
+
+def decimation_study(
+    part: Part,
+    request: PlanRequest,
+    ratios: Sequence[float],
+    *,
+    limits: Limits = DEFAULT_LIMITS,
+    threads: int | None = None,
+    progress: Progress | None = None,
+) -> Study:
+    """Plans made entirely on decimated copies (candidates, R, cover), their selections
+    re-traced on the original mesh and judged there (paper Fig. 3 left)."""
+    start = time.perf_counter()
+    _check_values(ratios, "ratios", upper=1.0)
+    check_request(request, limits)
+    if not isinstance(request.candidates, CandidateGenerator):
+        raise VppError("the decimation study generates its candidates: give a count, not a list")
+    plain = request.model_copy(
+        update={"candidates": request.candidates.model_copy(update={"decimate": None})}
+    )
+    original = make_backend(part, request.backend)
+    rows: list[DecimationRow] = []
+    traced = 0.0
+    seconds: list[float] = []
+    for k, ratio in enumerate(ratios):
+        _report(progress, "ratio", k, len(ratios))
+        planning = decimated_part(part, ratio)
+        backend = make_backend(planning, request.backend)
+        views, info = candidates_for(planning, plain, backend)
+        check_limits(len(views), request.sensor.n_pixels, limits)
+        trace = trace_counts(planning, request.sensor, views, backend=backend, threads=threads)
+        traced += trace.seconds
+        solver = _Solver(planning, trace, threads)
+        for formulation in FORMULATIONS:
+            req = _with_target(plain, request.target.resolution_mm, formulation)
+            cover, model = solver.cover(req)
+            doc = document(planning, req, views, info, trace, model, cover, Timings())
+            chosen = np.array([p.id for p in doc.viewpoints], dtype=np.int64)
+            check = trace_counts(
+                part, request.sensor, views.take(chosen), backend=original, threads=threads
+            )
+            traced += check.seconds
+            doc.metrics = evaluate(
+                check.counts,
+                part.areas,
+                part.counted,
+                np.arange(len(chosen)),
+                request.target.resolution_mm,
+            )
+            rows.append(
+                DecimationRow(
+                    ratio=ratio,
+                    resolution_mm=request.target.resolution_mm,
+                    planning_faces=planning.n_faces,
+                    **_row_fields(doc),
+                )
+            )
+        seconds += solver.seconds
+    return Study(
+        kind="decimation",
+        mesh=_mesh_info(part),
+        request=request,
+        rows=rows,
+        timings_s=StudyTimings(
+            trace_s=round(traced, 4),
+            solve_s=seconds,
+            total_s=round(time.perf_counter() - start, 4),
+        ),
+    )
+
+
+MAX_STUDY_VALUES = 100
+"""Most resolutions or ratios one study may ask for."""
+
+
+def _check_values(values: Sequence[float], name: str, upper: float | None) -> None:
+    """VppError unless 1..MAX_STUDY_VALUES finite positive values (≤ upper)."""
+    if not 1 <= len(values) <= MAX_STUDY_VALUES:
+        raise VppError(f"{name}: give 1 to {MAX_STUDY_VALUES} values, got {len(values)}")
+    for v in values:
+        if not (np.isfinite(v) and v > 0 and (upper is None or v <= upper)):
+            bound = f"in (0, {upper:g}]" if upper is not None else "positive"
+            raise VppError(f"{name}: every value must be {bound}, got {v:g}")
+
+
+def _report(progress: Progress | None, stage: str, done: int, total: int) -> None:
+    if progress:
+        progress(stage, done, total)
+
+
+def study_csv(study: Study) -> str:
+    """The study's rows as CSV (one line per row, poses left out)."""
+    head = ["ratio", "planning_faces"] if study.kind == "decimation" else []
+    cols = [
+        *head,
+        "resolution_mm",
+        "formulation",
+        "viewpoints",
+        "coverage_faces",
+        "coverage_area",
+        "met_faces",
+        "met_area",
+        "solver_status",
+        "solver_gap",
+    ]
+    lines = [",".join(cols)]
+    for row in study.rows:
+        extra = [row.ratio, row.planning_faces] if isinstance(row, DecimationRow) else []
+        values = [
+            *extra,
+            row.resolution_mm,
+            row.formulation,
+            row.viewpoints,
+            row.coverage.faces,
+            row.coverage.area,
+            row.resolution.met_faces,
+            row.resolution.met_area,
+            row.solver.status,
+            "" if row.solver.gap is None else row.solver.gap,
+        ]
+        lines.append(",".join(str(v) for v in values))
+    return "\n".join(lines) + "\n"

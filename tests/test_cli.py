@@ -238,3 +238,62 @@ def test_limits_are_settings(plate_files, monkeypatch):
     monkeypatch.setenv("VPP_MAX_FACES", "1")
     run = vpp("plan", mesh, "-q")
     assert run.returncode == 2 and "limit is 1" in run.stderr
+
+
+def test_study_resolution_writes_json_csv_and_plots(tmp_path):
+    mesh = tmp_path / "bushing.stl"
+    assert vpp("sample", mesh).returncode == 0
+    sensor = _small_sensor(tmp_path)
+    out, csv, plots = tmp_path / "s.json", tmp_path / "s.csv", tmp_path / "plots"
+    run = vpp(
+        "study", "resolution", mesh, "--sensor", sensor, "--candidates", "40", "-q",
+        "--resolutions", "1.2,2.5", "-o", out, "--csv", csv, "--plots", plots,
+    )  # fmt: skip
+    assert run.returncode == 0, run.stderr
+    doc = json.loads(out.read_text())
+    assert doc["kind"] == "resolution" and len(doc["rows"]) == 4
+    assert {(r["resolution_mm"], r["formulation"]) for r in doc["rows"]} == {
+        (1.2, "density"), (2.5, "density"), (1.2, "visibility"), (2.5, "visibility"),
+    }  # fmt: skip
+    assert len(csv.read_text().splitlines()) == 5
+    names = {p.name for p in plots.iterdir()}
+    assert {"study.json", "study.csv", "sweep.png", "histogram-1.2mm.png"} <= names
+    # the same count from a fresh plan at one of the resolutions
+    plan_out = tmp_path / "plan.json"
+    run = vpp("plan", mesh, "--sensor", sensor, "--candidates", "40", "-q",
+              "--resolution", "1.2", "-o", plan_out)  # fmt: skip
+    assert run.returncode == 0, run.stderr
+    row = next(
+        r for r in doc["rows"] if r["resolution_mm"] == 1.2 and r["formulation"] == "density"
+    )
+    assert row["viewpoints"] == len(json.loads(plan_out.read_text())["viewpoints"])
+
+
+def test_plan_point_cloud_and_plots(plate_files, tmp_path):
+    mesh, views = plate_files
+    ply, plots = tmp_path / "cloud.ply", tmp_path / "plots"
+    run = vpp("plan", mesh, "--candidates-file", views, "-q", "--point-cloud", ply,
+              "--plots", plots)  # fmt: skip
+    assert run.returncode == 0, run.stderr
+    cloud = trimesh.load(ply)
+    stats = json.loads((plots / "point-cloud.json").read_text())
+    assert len(cloud.vertices) == stats["points"] > 0
+    doc = json.loads((plots / "plan.json").read_text())
+    # density at 0.18 mm selects both views (test above): one point per valid ray of R
+    assert len(doc["viewpoints"]) == 2 and stats["points"] == doc["rays"]["valid"]
+    assert {"histogram.png", "cameras.png", "neighbours.png"} <= {p.name for p in plots.iterdir()}
+
+
+@pytest.mark.parametrize(
+    "args, match",
+    [
+        (["resolution", "--resolutions", "0.1,x"], "comma-separated"),
+        (["resolution", "--resolutions", "0,0.2"], "positive"),
+        (["decimation", "--ratios", "2"], "ratios"),
+    ],
+)
+def test_bad_study_options_fail_with_one_line_and_exit_2(plate_files, args, match):
+    mesh, _ = plate_files
+    run = vpp("study", args[0], mesh, "-q", *args[1:])
+    assert run.returncode == 2
+    assert match in run.stderr and len(run.stderr.strip().splitlines()) == 1, run.stderr

@@ -32,7 +32,15 @@ from vpp_core.rays import DEFAULT_BACKEND
 from vpp_core.raytrace import BACKENDS, make_backend
 from vpp_core.samples import sample_stl
 from vpp_core.sensor import make_sensor
-from vpp_core.studies import DecimationRow, Study, decimation_study, resolution_sweep, study_csv
+from vpp_core.studies import (
+    DEFAULT_RATIOS,
+    DEFAULT_RESOLUTIONS,
+    DecimationRow,
+    Study,
+    decimation_study,
+    resolution_sweep,
+    study_csv,
+)
 from worker.settings import Settings, get_settings
 
 EXIT_INPUT = 2
@@ -142,12 +150,6 @@ def _plan_options(p: argparse.ArgumentParser) -> None:
         help=f"ray backend for R (default {DEFAULT_BACKEND}: the fastest)",
     )
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
-
-
-DEFAULT_RESOLUTIONS = [0.1, 0.12, 0.14, 0.16, 0.18, 0.2, 0.25, 0.3, 0.4, 0.5]
-"""Target resolutions (mm) of `vpp study resolution` when none are given."""
-DEFAULT_RATIOS = [1.0, 0.5, 0.2, 0.1, 0.05]
-"""Face ratios of `vpp study decimation` when none are given."""
 
 
 def _floats(text: str) -> list[float]:

@@ -10,7 +10,7 @@ from fastapi.routing import APIRoute
 from redis import Redis
 
 from service import problems
-from service.routers import health, jobs, meshes, plans
+from service.routers import health, jobs, meshes, plans, studies
 from worker.queue import make_queue
 from worker.settings import Settings, get_settings
 from worker.store import open_store
@@ -56,6 +56,6 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.queue = make_queue(conn, settings)
     app.state.store = open_store(settings.store_url)
     problems.install(app)
-    for router in (meshes.router, plans.router, jobs.router, health.router):
+    for router in (meshes.router, plans.router, studies.router, jobs.router, health.router):
         app.include_router(router)
     return app

@@ -8,6 +8,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 from vpp_core.document import PlanRequest
+from vpp_core.studies import DEFAULT_RATIOS, DEFAULT_RESOLUTIONS
 
 
 class MeshSummary(BaseModel):
@@ -29,6 +30,35 @@ class PlanSubmit(PlanRequest):
     model_config = ConfigDict(extra="forbid")
 
     mesh_id: str = Field(pattern=r"^[0-9a-f]{64}$")
+
+
+class StudySubmit(PlanRequest):
+    """A study of an uploaded mesh: `resolution` sweeps `resolutions` (mm) from one trace;
+    `decimation` plans on copies decimated to `ratios` of the faces, judged on the original.
+    The rest as in a plan request (the target's resolution is the decimation study's)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    mesh_id: str = Field(pattern=r"^[0-9a-f]{64}$")
+    kind: Literal["resolution", "decimation"]
+    resolutions: list[float] = Field(
+        default=DEFAULT_RESOLUTIONS,
+        min_length=1,
+        max_length=100,
+        description="target resolutions of a `resolution` study, mm",
+    )
+    ratios: list[float] = Field(
+        default=DEFAULT_RATIOS,
+        min_length=1,
+        max_length=100,
+        description="face ratios of a `decimation` study, each in (0, 1]",
+    )
+
+
+class StudyPlots(BaseModel):
+    """Links to a study's (or a point cloud's) PNG plots."""
+
+    plots: list[str]
 
 
 class JobAccepted(BaseModel):

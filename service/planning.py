@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import json
 import re
+from collections.abc import Sequence
 from dataclasses import asdict
 from pathlib import PurePath
 from typing import BinaryIO
@@ -10,15 +12,17 @@ from typing import BinaryIO
 from redis import Redis
 from rq import Queue
 
-from service.models import JobOut, MeshSummary, PlanSubmit
+from service.models import JobOut, MeshSummary, PlanSubmit, StudySubmit
 from vpp_core.document import PlanRequest
 from vpp_core.errors import NotFoundError, TooLargeError, VppError
 from vpp_core.mesh import load_mesh
 from vpp_core.plan import check_request
+from vpp_core.studies import check_study
 from worker import artifacts as art
 from worker import queue as jobs
 from worker.settings import Settings
 from worker.store import Store
+from worker.studies import cloud_job, study_job
 
 READ_CHUNK = 1 << 20
 """Bytes read from an upload at a time."""
@@ -86,13 +90,73 @@ def submit_plan(store: Store, queue: Queue, settings: Settings, body: PlanSubmit
     return plan
 
 
-def job_out(conn: Redis, store: Store, plan: str) -> JobOut:
-    """The job resource of plan `plan`."""
-    state = jobs.state(conn, store, content_id(plan, "job"))
+def submit_study(store: Store, queue: Queue, settings: Settings, body: StudySubmit) -> str:
+    """Check the study request, store it and enqueue its job unless done; the study id."""
+    request = PlanRequest.model_validate(body.model_dump(include=set(PlanRequest.model_fields)))
+    if not store.exists(art.mesh_key(body.mesh_id)):
+        raise VppError(f"mesh_id {body.mesh_id}: no such mesh; upload it with POST /v1/meshes")
+    values = body.resolutions if body.kind == "resolution" else body.ratios
+    check_study(body.kind, values, request, settings.limits())
+    study = art.study_id(body.mesh_id, request, body.kind, values)
+    if not store.exists(art.study_key(study)):
+        art.put_study_request(store, study, body.mesh_id, request, body.kind, values)
+        jobs.submit(queue, settings, study, study_job)
+    return study
+
+
+def submit_cloud(store: Store, queue: Queue, settings: Settings, plan: str) -> str:
+    """Enqueue the point cloud of a finished plan unless done; the cloud (job) id."""
+    if not store.exists(art.plan_key(content_id(plan, "plan"))):
+        raise NotFoundError(f"no finished plan {plan!r}: its point cloud needs the plan first")
+    cloud = art.cloud_id(plan)
+    if not store.exists(art.cloud_key(cloud)):
+        store.put(art.request_key(cloud), json.dumps({"plan": plan}).encode())
+        jobs.submit(queue, settings, cloud, cloud_job)
+    return cloud
+
+
+def job_out(conn: Redis, store: Store, job_id: str) -> JobOut:
+    """The job resource of a plan, study or point cloud job."""
+    state = jobs.state(conn, store, content_id(job_id, "job"))
     out = JobOut.model_validate(asdict(state))
     if state.status == "succeeded":
-        out.result_url = f"/v1/plans/{plan}"
+        out.result_url = result_url(store, job_id)
     return out
+
+
+def result_url(store: Store, job_id: str) -> str:
+    """Where the finished job's result is served."""
+    if store.exists(art.study_key(job_id)):
+        return f"/v1/studies/{job_id}"
+    if store.exists(art.cloud_key(job_id)):
+        plan = json.loads(store.get(art.request_key(job_id)))["plan"]
+        return f"/v1/plans/{plan}/point-cloud"
+    return f"/v1/plans/{job_id}"
+
+
+def stored(store: Store, key: str, what: str) -> bytes:
+    """A stored result (NotFoundError naming `what` while it is not computed)."""
+    try:
+        return store.get(key)
+    except NotFoundError:
+        raise NotFoundError(f"no {what} (not computed, or still running)") from None
+
+
+PLAN_PLOTS = ("histogram.png", "cameras.png")
+"""The plots every plan job stores."""
+
+
+def plot_name(name: str, names: Sequence[str]) -> str:
+    """`name` if it is one of `names`, else NotFoundError listing them (never a store lookup)."""
+    if name not in names:
+        raise NotFoundError(f"no plot {name!r}; there are: {', '.join(names)}")
+    return name
+
+
+def study_plot_names(store: Store, study: str) -> list[str]:
+    """The names of a finished study's plots."""
+    key = art.plot_key(f"studies/{content_id(study, 'study')}", "plots.json")
+    return list(json.loads(stored(store, key, f"study {study}")))
 
 
 def cancel_job(conn: Redis, store: Store, plan: str) -> JobOut:

@@ -169,7 +169,12 @@ def test_committed_openapi_matches_the_app() -> None:
         for path in json.loads(committed)["paths"].values()
         for op in path.values()
     }
-    assert ops == {"upload_mesh", "get_mesh", "submit_plan", "get_job", "cancel_job", "get_plan"}
+    assert ops == {
+        "upload_mesh", "get_mesh", "submit_plan", "get_job", "cancel_job", "get_plan",
+        "get_plan_plot", "submit_point_cloud", "get_point_cloud", "get_point_cloud_stats",
+        "get_point_cloud_plot", "submit_study", "get_study", "get_study_csv",
+        "list_study_plots", "get_study_plot",
+    }  # fmt: skip
 
 
 def test_sample_part_is_watertight() -> None:

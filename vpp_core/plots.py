@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
+from matplotlib.ticker import NullFormatter, ScalarFormatter
 
 from vpp_core.candidates import planning_mesh
 from vpp_core.document import PlanDocument
@@ -98,6 +99,10 @@ def decimation_png(study: Study) -> bytes:
     met_ax.set_ylabel(f"area at r* ≤ {target:g} mm on the original (%)")
     for ax in (cover_ax, met_ax):
         ax.set_xscale("log")
+        ax.xaxis.set_major_formatter(ScalarFormatter())
+        ax.xaxis.set_minor_formatter(NullFormatter())
+        ax.set_xticks(sorted({getattr(r, "planning_faces", 1) for r in study.rows}))
+        ax.tick_params(axis="x", labelrotation=45)
         ax.set_xlabel("faces of the planning mesh")
         ax.grid(alpha=0.3, which="both")
     cover_ax.set_title("coverage (numbers: #OVP)")

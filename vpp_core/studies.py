@@ -32,6 +32,10 @@ from vpp_core.partial import PartialCover
 from vpp_core.plan import Limits, candidates_for, check_limits, check_request, document, solve
 from vpp_core.raytrace import Trace, make_backend, trace_counts
 
+DEFAULT_RESOLUTIONS = [0.1, 0.12, 0.14, 0.16, 0.18, 0.2, 0.25, 0.3, 0.4, 0.5]
+"""Target resolutions (mm) of a resolution sweep when none are given."""
+DEFAULT_RATIOS = [1.0, 0.5, 0.2, 0.1, 0.05]
+"""Face ratios of a decimation study when none are given."""
 DEFAULT_LIMITS = Limits()
 FORMULATIONS: tuple[Formulation, ...] = ("density", "visibility")
 Progress = Callable[[str, int, int], None]
@@ -171,8 +175,7 @@ def resolution_sweep(
 ) -> Study:
     """#OVP against r̄ (mm) for both formulations from one trace (paper Fig. 3 right)."""
     start = time.perf_counter()
-    _check_values(resolutions, "resolutions", upper=None)
-    check_request(request, limits)
+    check_study("resolution", resolutions, request, limits)
     backend = make_backend(part, request.backend)
     views, info = candidates_for(part, request, backend)
     check_limits(len(views), request.sensor.n_pixels, limits)
@@ -220,10 +223,8 @@ def decimation_study(
     """Plans made entirely on decimated copies (candidates, R, cover), their selections
     re-traced on the original mesh and judged there (paper Fig. 3 left)."""
     start = time.perf_counter()
-    _check_values(ratios, "ratios", upper=1.0)
-    check_request(request, limits)
-    if not isinstance(request.candidates, CandidateGenerator):
-        raise VppError("the decimation study generates its candidates: give a count, not a list")
+    check_study("decimation", ratios, request, limits)
+    assert isinstance(request.candidates, CandidateGenerator)
     plain = request.model_copy(
         update={"candidates": request.candidates.model_copy(update={"decimate": None})}
     )
@@ -276,6 +277,19 @@ def decimation_study(
             total_s=round(time.perf_counter() - start, 4),
         ),
     )
+
+
+def check_study(
+    kind: str, values: Sequence[float], request: PlanRequest, limits: Limits = DEFAULT_LIMITS
+) -> None:
+    """Refuse, before any work, a study whose values or request are malformed or too big."""
+    if kind == "decimation":
+        _check_values(values, "ratios", upper=1.0)
+        if not isinstance(request.candidates, CandidateGenerator):
+            raise VppError("the decimation study generates its candidates: give a count")
+    else:
+        _check_values(values, "resolutions", upper=None)
+    check_request(request, limits)
 
 
 MAX_STUDY_VALUES = 100

@@ -7,6 +7,9 @@ traces/<trace id>/views.npz     candidate poses and their CandidateInfo
 traces/<trace id>/chunks-<size>/<i>.npz  R of candidates [i·size, (i+1)·size)
 traces/<trace id>/counts.npz    the assembled R (M faces × N candidates) and its ray figures
 plans/<plan id>.json            the plan document (SPEC §8)
+plans/<plan id>/<name>.png      its plots (histogram, cameras)
+studies/<study id>.json|.csv    a study's document and rows; studies/<study id>/<name>.png its plots
+clouds/<cloud id>.ply|.json     a plan's simulated point cloud and its statistics (+ neighbours.png)
 
 The plan id hashes the mesh id and the whole normalised request; the trace id only what R
 depends on (mesh, sensor, candidates, backend), so another resolution, formulation or solver
@@ -60,6 +63,38 @@ def request_key(plan: str) -> str:
 
 def plan_key(plan: str) -> str:
     return f"plans/{plan}.json"
+
+
+def study_id(mesh_id: str, request: PlanRequest, kind: str, values: list[float]) -> str:
+    """Content id of a study: mesh, request, kind and its resolutions or ratios."""
+    dump = request.model_dump(mode="json")
+    return digest(
+        {"kind": f"study/1/{kind}", "mesh_id": mesh_id, "request": dump, "values": values}
+    )
+
+
+def cloud_id(plan: str) -> str:
+    """Content id of a plan's point cloud."""
+    return digest({"kind": "cloud/1", "plan": plan})
+
+
+def plot_key(owner: str, name: str) -> str:
+    """A PNG of a plan ('plans/<id>') or a study ('studies/<id>') or a cloud ('clouds/<id>')."""
+    return f"{owner}/{name}"
+
+
+def study_key(study: str, suffix: str = "json") -> str:
+    return f"studies/{study}.{suffix}"
+
+
+def cloud_key(cloud: str, suffix: str = "json") -> str:
+    return f"clouds/{cloud}.{suffix}"
+
+
+def done_keys(job_id: str) -> tuple[str, str, str]:
+    """The keys whose existence means the job `job_id` (plan, study or cloud) has succeeded;
+    ids of different kinds never collide (the kind is hashed in)."""
+    return plan_key(job_id), study_key(job_id), cloud_key(job_id)
 
 
 def views_key(trace: str) -> str:
@@ -118,6 +153,30 @@ def put_request(store: Store, plan: str, mesh_id: str, request: PlanRequest) -> 
     """Store what the plan job `plan` must compute."""
     body = {"mesh_id": mesh_id, "request": request.model_dump(mode="json")}
     store.put(request_key(plan), json.dumps(body).encode())
+
+
+def put_study_request(
+    store: Store, study: str, mesh_id: str, request: PlanRequest, kind: str, values: list[float]
+) -> None:
+    """Store what the study job `study` must compute."""
+    body = {
+        "mesh_id": mesh_id,
+        "request": request.model_dump(mode="json"),
+        "study": {"kind": kind, "values": values},
+    }
+    store.put(request_key(study), json.dumps(body).encode())
+
+
+def get_study_request(store: Store, study: str) -> tuple[str, PlanRequest, str, list[float]]:
+    """(mesh id, request, kind, values) of the study job `study`."""
+    body = json.loads(store.get(request_key(study)))
+    spec = body["study"]
+    return (
+        body["mesh_id"],
+        PlanRequest.model_validate(body["request"]),
+        spec["kind"],
+        spec["values"],
+    )
 
 
 def get_request(store: Store, plan: str) -> tuple[str, PlanRequest]:

@@ -11,6 +11,7 @@ a cancelled or crashed plan resumes where it stopped; R is traced once per trace
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -23,6 +24,7 @@ from vpp_core.document import PlanRequest, Timings
 from vpp_core.errors import VppError
 from vpp_core.mesh import Part
 from vpp_core.plan import candidates_for, check_limits, finish
+from vpp_core.plots import plan_plots
 from vpp_core.pose import Viewpoints
 from vpp_core.rays import RayBackend
 from vpp_core.raytrace import Trace, join_traces, make_backend, trace_counts
@@ -57,7 +59,7 @@ class _Meta:
 
 
 @dataclass
-class _Context:
+class Context:
     """What a job works with: settings, store, its RQ job, queue and progress."""
 
     settings: Settings
@@ -67,7 +69,7 @@ class _Context:
     meta: _Meta
 
     @classmethod
-    def current(cls) -> _Context:
+    def current(cls) -> Context:
         job = get_current_job()
         if job is None:
             raise RuntimeError("not running inside an RQ job")
@@ -78,9 +80,14 @@ class _Context:
 
 def plan_job(plan: str) -> dict[str, Any]:
     """Compute and store the plan `plan` (its request is in the store); returns a summary."""
-    ctx = _Context.current()
+    return run_job(_plan, plan)
+
+
+def run_job(body: Callable[[Context, str], dict[str, Any]], job_id: str) -> dict[str, Any]:
+    """Run a job body in the current RQ job's context; its error recorded for clients."""
+    ctx = Context.current()
     try:
-        return _plan(ctx, plan)
+        return body(ctx, job_id)
     except BaseException as exc:
         ctx.meta.update(force=True, error=error_record(exc))
         raise
@@ -93,7 +100,7 @@ def error_record(exc: BaseException) -> dict[str, str]:
     return {"type": "InternalError", "title": "Internal error", "detail": f"{exc!r}"}
 
 
-def _plan(ctx: _Context, plan: str) -> dict[str, Any]:
+def _plan(ctx: Context, plan: str) -> dict[str, Any]:
     if ctx.store.exists(art.plan_key(plan)):
         return {"plan": plan, "cached": True}
     mesh_id, request = art.get_request(ctx.store, plan)
@@ -101,7 +108,7 @@ def _plan(ctx: _Context, plan: str) -> dict[str, Any]:
     trace_id = art.trace_id(mesh_id, request)
     timings = Timings()
     views, info, trace, reused = _trace(ctx, part, request, trace_id, timings)
-    progress = _stage_progress(ctx.meta)
+    progress = stage_progress(ctx.meta)
     doc = finish(
         part,
         request,
@@ -113,13 +120,16 @@ def _plan(ctx: _Context, plan: str) -> dict[str, Any]:
         progress=progress,
         reused=reused,
     )
+    ctx.meta.update(force=True, stage="plots")
+    for name, png in plan_plots(part, doc).items():  # before the document: it means done
+        ctx.store.put(art.plot_key(f"plans/{plan}", name), png)
     art.put_plan(ctx.store, plan, doc)
     ctx.meta.update(force=True, stage="done")
     return {"plan": plan, "viewpoints": len(doc.viewpoints), "trace": trace_id}
 
 
 def _trace(
-    ctx: _Context, part: Part, request: PlanRequest, trace_id: str, timings: Timings
+    ctx: Context, part: Part, request: PlanRequest, trace_id: str, timings: Timings
 ) -> tuple[Viewpoints, Any, Trace, bool]:
     """(views, candidate info, R, reused): from the store, or traced under the trace's lock."""
     if not ctx.store.exists(art.counts_key(trace_id)):
@@ -140,7 +150,7 @@ def _trace(
 
 
 def _candidates(
-    ctx: _Context, part: Part, request: PlanRequest, trace_id: str, backend: RayBackend
+    ctx: Context, part: Part, request: PlanRequest, trace_id: str, backend: RayBackend
 ) -> tuple[Viewpoints, Any]:
     """Generate (or read back) the candidates of `trace_id`, checked against the limits."""
     if ctx.store.exists(art.views_key(trace_id)):
@@ -154,7 +164,7 @@ def _candidates(
 
 
 def _fan_out(
-    ctx: _Context,
+    ctx: Context,
     part: Part,
     sensor: Sensor,
     views: Viewpoints,
@@ -189,7 +199,7 @@ def chunk_range(index: int, size: int, n_views: int) -> tuple[int, int]:
 
 
 def _trace_range(
-    ctx: _Context,
+    ctx: Context,
     part: Part,
     sensor: Sensor,
     views: Viewpoints,
@@ -206,7 +216,7 @@ def _trace_range(
 
 def chunk_job(mesh_id: str, trace_id: str, size: int, index: int) -> dict[str, Any]:
     """Trace chunk `index` (views [index·size, (index+1)·size)) of `trace_id` into the store."""
-    ctx = _Context.current()
+    ctx = Context.current()
     key = art.chunk_key(trace_id, size, index)
     if ctx.store.exists(key):
         return {"chunk": index, "cached": True}
@@ -225,7 +235,7 @@ def chunk_job(mesh_id: str, trace_id: str, size: int, index: int) -> dict[str, A
     return {"chunk": index, "views": hi - lo, "rays_cast": trace.rays_cast}
 
 
-def _stage_progress(meta: _Meta) -> Any:
+def stage_progress(meta: _Meta) -> Any:
     """A vpp_core progress callback writing stage, done and total into the job's meta."""
 
     def progress(stage: str, done: int, total: int) -> None:
@@ -237,7 +247,7 @@ def _stage_progress(meta: _Meta) -> Any:
 class _Chunks:
     """The chunk jobs of one fan-out and what the plan job knows of them."""
 
-    def __init__(self, ctx: _Context, mesh_id: str, trace_id: str, n_views: int, size: int) -> None:
+    def __init__(self, ctx: Context, mesh_id: str, trace_id: str, n_views: int, size: int) -> None:
         self.ctx, self.mesh_id, self.trace_id = ctx, mesh_id, trace_id
         self.n_views, self.size = n_views, size
         self.n = -(-n_views // size)

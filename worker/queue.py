@@ -8,6 +8,7 @@ queue and the store the record.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import datetime
 from typing import Any, Literal
@@ -65,8 +66,11 @@ def make_queue(conn: Redis, settings: Settings) -> Queue:
     return Queue(settings.queue, connection=conn)
 
 
-def submit(queue: Queue, settings: Settings, plan: str) -> None:
-    """Enqueue the plan job `plan` unless it is queued or running (then the caller joins it)."""
+def submit(
+    queue: Queue, settings: Settings, plan: str, func: Callable[[str], Any] = plan_job
+) -> None:
+    """Enqueue `func(plan)` as job `plan` (a plan, study or point cloud id) unless it is queued
+    or running (then the caller joins it)."""
     conn = queue.connection
     lock = f"vpp:submit-lock:{plan}"
     while not conn.set(lock, "1", nx=True, px=SUBMIT_LOCK_MS):
@@ -78,13 +82,13 @@ def submit(queue: Queue, settings: Settings, plan: str) -> None:
         if job is not None:
             job.delete()
         queue.enqueue_call(
-            plan_job,
+            func,
             args=(plan,),
             job_id=plan,
             timeout=settings.plan_timeout_s,
             result_ttl=settings.result_ttl_s,
             failure_ttl=settings.failure_ttl_s,
-            description=f"plan {plan[:12]}",
+            description=f"{func.__name__.removesuffix('_job')} {plan[:12]}",
         )
     finally:
         conn.delete(lock)
@@ -93,7 +97,7 @@ def submit(queue: Queue, settings: Settings, plan: str) -> None:
 def state(conn: Redis, store: Store, plan: str) -> JobState:
     """The job state of `plan`; NotFoundError when neither Redis nor the store knows it."""
     job = _fetch(conn, plan)
-    if store.exists(art.plan_key(plan)):
+    if any(store.exists(key) for key in art.done_keys(plan)):
         return _from_job(plan, "succeeded", {"stage": "done"}, job)
     status = _status(job) if job is not None else None
     if job is None or status is None:
@@ -105,7 +109,7 @@ def state(conn: Redis, store: Store, plan: str) -> JobState:
         result.error = meta.get("error") or _worker_error(job)
     elif status == "succeeded":  # finished, yet the document is gone from the store
         result.status = "failed"
-        result.error = error_record(NotFoundError("the plan document is missing from the store"))
+        result.error = error_record(NotFoundError("the job's result is missing from the store"))
     return result
 
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Annotated
+from typing import Annotated, Any
 
 from fastapi import APIRouter, Header, Response
 
@@ -10,6 +10,8 @@ from service import planning
 from service.deps import QueueDep, SettingsDep, StoreDep
 from service.models import JobAccepted, PlanSubmit, Problem
 from vpp_core.document import PlanDocument
+from vpp_core.pointcloud import CloudStats
+from worker import artifacts as art
 
 router = APIRouter(prefix="/v1/plans", tags=["plans"])
 IMMUTABLE = "public, max-age=31536000, immutable"
@@ -31,11 +33,18 @@ def submit_plan(
 ) -> JobAccepted:
     """Plan a mesh; identical requests share one job and one result (the plan id is their hash)."""
     plan = planning.submit_plan(store, queue, settings, body)
-    job = planning.job_out(queue.connection, store, plan)
-    response.headers["Location"] = f"/v1/jobs/{plan}"
+    return accepted(plan, response, store, queue, settings)
+
+
+def accepted(
+    job_id: str, response: Response, store: StoreDep, queue: QueueDep, settings: SettingsDep
+) -> JobAccepted:
+    """The 202 body and headers of a submitted job: Location, Retry-After while it runs."""
+    job = planning.job_out(queue.connection, store, job_id)
+    response.headers["Location"] = f"/v1/jobs/{job_id}"
     if job.status in ("queued", "running"):
         response.headers["Retry-After"] = str(settings.retry_after_s)
-    return JobAccepted(id=plan, status=job.status)
+    return JobAccepted(id=job_id, status=job.status)
 
 
 @router.get(
@@ -55,3 +64,66 @@ def get_plan(
     if if_none_match and etag in [t.strip() for t in if_none_match.split(",")]:
         return Response(status_code=304, headers=headers)
     return Response(data, media_type="application/json", headers=headers)
+
+
+PNG: dict[int | str, dict[str, Any]] = {
+    200: {"content": {"image/png": {}}},
+    404: {"model": Problem},
+}
+
+
+@router.get("/{plan_id}/plots/{name}", response_class=Response, responses=PNG)
+def get_plan_plot(plan_id: str, name: str, store: StoreDep) -> Response:
+    """A PNG plot of the plan: histogram.png (resolution per face) or cameras.png (frusta)."""
+    planning.content_id(plan_id, "plan")
+    name = planning.plot_name(name, planning.PLAN_PLOTS)
+    data = planning.stored(store, art.plot_key(f"plans/{plan_id}", name), f"plot {name}")
+    return Response(data, media_type="image/png", headers={"Cache-Control": IMMUTABLE})
+
+
+@router.post(
+    "/{plan_id}/point-cloud",
+    status_code=202,
+    response_model=JobAccepted,
+    responses={404: {"model": Problem}},
+)
+def submit_point_cloud(
+    plan_id: str, response: Response, store: StoreDep, queue: QueueDep, settings: SettingsDep
+) -> JobAccepted:
+    """Simulate the plan's point cloud (one point per valid ray of its viewpoints) as a job."""
+    cloud = planning.submit_cloud(store, queue, settings, plan_id)
+    return accepted(cloud, response, store, queue, settings)
+
+
+@router.get(
+    "/{plan_id}/point-cloud",
+    response_class=Response,
+    responses={200: {"content": {"application/octet-stream": {}}}, 404: {"model": Problem}},
+)
+def get_point_cloud(plan_id: str, store: StoreDep) -> Response:
+    """The point cloud as binary PLY: x, y, z (float32 mm), neighbours within r̄, view."""
+    key = art.cloud_key(art.cloud_id(planning.content_id(plan_id, "plan")), "ply")
+    data = planning.stored(store, key, f"point cloud of plan {plan_id}")
+    headers = {
+        "Cache-Control": IMMUTABLE,
+        "Content-Disposition": 'attachment; filename="cloud.ply"',
+    }
+    return Response(data, media_type="application/octet-stream", headers=headers)
+
+
+@router.get(
+    "/{plan_id}/point-cloud/stats", response_model=CloudStats, responses={404: {"model": Problem}}
+)
+def get_point_cloud_stats(plan_id: str, store: StoreDep) -> Response:
+    """Summary of the point cloud: points per view, neighbour counts, spacing."""
+    key = art.cloud_key(art.cloud_id(planning.content_id(plan_id, "plan")))
+    data = planning.stored(store, key, f"point cloud of plan {plan_id}")
+    return Response(data, media_type="application/json", headers={"Cache-Control": IMMUTABLE})
+
+
+@router.get("/{plan_id}/point-cloud/neighbours.png", response_class=Response, responses=PNG)
+def get_point_cloud_plot(plan_id: str, store: StoreDep) -> Response:
+    """Distribution of the neighbour counts within r̄ (PNG)."""
+    owner = f"clouds/{art.cloud_id(planning.content_id(plan_id, 'plan'))}"
+    data = planning.stored(store, art.plot_key(owner, "neighbours.png"), "point cloud plot")
+    return Response(data, media_type="image/png", headers={"Cache-Control": IMMUTABLE})

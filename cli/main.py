@@ -25,11 +25,11 @@ from vpp_core.document import (
 )
 from vpp_core.errors import VppError
 from vpp_core.mesh import UNITS_TO_MM, Part, load_mesh
-from vpp_core.plan import explicit_viewpoints, plan
+from vpp_core.plan import plan
 from vpp_core.plots import plan_plots, study_plots
-from vpp_core.pointcloud import CloudStats, simulate, write_ply
+from vpp_core.pointcloud import CloudStats, simulate_plan, write_ply
 from vpp_core.rays import DEFAULT_BACKEND
-from vpp_core.raytrace import BACKENDS, make_backend
+from vpp_core.raytrace import BACKENDS
 from vpp_core.samples import sample_stl
 from vpp_core.sensor import make_sensor
 from vpp_core.studies import (
@@ -201,15 +201,13 @@ def run_plan(args: argparse.Namespace) -> int:
     console.print(summary(doc))
     if doc.diagnostics and doc.diagnostics.hint:
         console.print(f"[yellow]note:[/] {doc.diagnostics.hint}", highlight=False)
+    text = doc.model_dump_json(indent=1)
     if args.output:
-        _write(args.output, doc.model_dump_json(indent=1))
+        _write(args.output, text)
         print(f"plan written to {args.output}")
     stats = _point_cloud(args, part, doc, settings.max_cloud_points, threads)
     if args.plots:
-        files = {
-            "plan.json": doc.model_dump_json(indent=1).encode(),
-            **plan_plots(part, doc, stats),
-        }
+        files = {"plan.json": text.encode(), **plan_plots(part, doc, stats)}
         if stats is not None:
             files["point-cloud.json"] = stats.model_dump_json(indent=1).encode()
         _write_all(args.plots, files)
@@ -223,16 +221,7 @@ def _point_cloud(
     if not args.point_cloud:
         return None
     start = time.perf_counter()
-    views = explicit_viewpoints(doc.viewpoints)
-    cloud, counts, stats = simulate(
-        part,
-        doc.sensor,
-        views,
-        make_backend(part, doc.rays.backend),
-        doc.target.resolution_mm,
-        max_points=max_points,
-        workers=threads or -1,
-    )
+    cloud, counts, stats = simulate_plan(part, doc, max_points=max_points, workers=threads or -1)
     try:
         with args.point_cloud.open("wb") as out:
             write_ply(out, cloud, counts)

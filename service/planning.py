@@ -110,7 +110,7 @@ def submit_cloud(store: Store, queue: Queue, settings: Settings, plan: str) -> s
         raise NotFoundError(f"no finished plan {plan!r}: its point cloud needs the plan first")
     cloud = art.cloud_id(plan)
     if not store.exists(art.cloud_key(cloud)):
-        store.put(art.request_key(cloud), json.dumps({"plan": plan}).encode())
+        art.put_cloud_request(store, cloud, plan)
         jobs.submit(queue, settings, cloud, cloud_job)
     return cloud
 
@@ -129,8 +129,7 @@ def result_url(store: Store, job_id: str) -> str:
     if store.exists(art.study_key(job_id)):
         return f"/v1/studies/{job_id}"
     if store.exists(art.cloud_key(job_id)):
-        plan = json.loads(store.get(art.request_key(job_id)))["plan"]
-        return f"/v1/plans/{plan}/point-cloud"
+        return f"/v1/plans/{art.get_cloud_plan(store, job_id)}/point-cloud"
     return f"/v1/plans/{job_id}"
 
 

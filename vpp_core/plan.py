@@ -248,13 +248,7 @@ def document(
     chosen = result.selected[order]
     metrics = evaluate(trace.counts, part.areas, part.counted, chosen, request.target.resolution_mm)
     return PlanDocument(
-        mesh=MeshInfo(
-            id=part.id,
-            faces=part.n_faces,
-            area_mm2=part.area_mm2,
-            counted_faces=int(part.counted.sum()),
-            warnings=list(part.warnings),
-        ),
+        mesh=mesh_info(part),
         sensor=request.sensor,
         target=request.target,
         candidates=_poses(views, np.arange(len(views)), CandidateOut),
@@ -288,6 +282,17 @@ def document(
             trace_s=round(trace.seconds, 4),
         ),
         timings_s=timings,
+    )
+
+
+def mesh_info(part: Part) -> MeshInfo:
+    """The document's summary of the part planned on."""
+    return MeshInfo(
+        id=part.id,
+        faces=part.n_faces,
+        area_mm2=part.area_mm2,
+        counted_faces=int(part.counted.sum()),
+        warnings=list(part.warnings),
     )
 
 

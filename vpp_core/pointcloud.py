@@ -16,11 +16,13 @@ import numpy as np
 from pydantic import BaseModel
 from scipy.spatial import cKDTree
 
+from vpp_core.document import PlanDocument
 from vpp_core.errors import LimitError
 from vpp_core.mesh import Part
+from vpp_core.plan import explicit_viewpoints
 from vpp_core.pose import Viewpoints
 from vpp_core.rays import RayBackend
-from vpp_core.raytrace import view_blocks
+from vpp_core.raytrace import make_backend, view_blocks
 from vpp_core.sensor import Sensor
 
 SLAB_POINTS = 2_000_000
@@ -179,3 +181,18 @@ def simulate(
     cloud = hit_points(part, sensor, views, backend, max_points)
     counts, nearest = neighbour_counts(cloud.points, radius, workers)
     return cloud, counts, cloud_stats(cloud, counts, nearest, radius)
+
+
+def simulate_plan(
+    part: Part, doc: PlanDocument, *, max_points: int, workers: int = -1
+) -> tuple[PointCloud, np.ndarray, CloudStats]:
+    """`simulate` for a plan's selected viewpoints, its sensor, target r̄ and ray backend."""
+    return simulate(
+        part,
+        doc.sensor,
+        explicit_viewpoints(doc.viewpoints),
+        make_backend(part, doc.rays.backend),
+        doc.target.resolution_mm,
+        max_points=max_points,
+        workers=workers,
+    )

@@ -29,7 +29,15 @@ from vpp_core.errors import VppError
 from vpp_core.mesh import Part, part_from_arrays
 from vpp_core.metrics import Histogram, evaluate
 from vpp_core.partial import PartialCover
-from vpp_core.plan import Limits, candidates_for, check_limits, check_request, document, solve
+from vpp_core.plan import (
+    Limits,
+    candidates_for,
+    check_limits,
+    check_request,
+    document,
+    mesh_info,
+    solve,
+)
 from vpp_core.raytrace import Trace, make_backend, trace_counts
 
 DEFAULT_RESOLUTIONS = [0.1, 0.12, 0.14, 0.16, 0.18, 0.2, 0.25, 0.3, 0.4, 0.5]
@@ -122,13 +130,26 @@ def _row_fields(doc: PlanDocument) -> dict[str, object]:
     )
 
 
-def _mesh_info(part: Part) -> MeshInfo:
-    return MeshInfo(
-        id=part.id,
-        faces=part.n_faces,
-        area_mm2=part.area_mm2,
-        counted_faces=int(part.counted.sum()),
-        warnings=list(part.warnings),
+def _study(
+    kind: Literal["resolution", "decimation"],
+    part: Part,
+    request: PlanRequest,
+    rows: list[SweepRow] | list[DecimationRow],
+    trace_s: float,
+    solve_s: list[float],
+    start: float,
+) -> Study:
+    """The study document, its timings rounded as the plan document's are."""
+    return Study(
+        kind=kind,
+        mesh=mesh_info(part),
+        request=request,
+        rows=rows,
+        timings_s=StudyTimings(
+            trace_s=round(trace_s, 4),
+            solve_s=solve_s,
+            total_s=round(time.perf_counter() - start, 4),
+        ),
     )
 
 
@@ -190,17 +211,7 @@ def resolution_sweep(
             cover, model = solver.cover(req)
             doc = document(part, req, views, info, trace, model, cover, Timings())
             rows.append(SweepRow(resolution_mm=r, **_row_fields(doc)))
-    return Study(
-        kind="resolution",
-        mesh=_mesh_info(part),
-        request=request,
-        rows=rows,
-        timings_s=StudyTimings(
-            trace_s=round(trace.seconds, 4),
-            solve_s=solver.seconds,
-            total_s=round(time.perf_counter() - start, 4),
-        ),
-    )
+    return _study("resolution", part, request, rows, trace.seconds, solver.seconds, start)
 
 
 def decimated_part(part: Part, ratio: float) -> Part:
@@ -266,17 +277,7 @@ def decimation_study(
                 )
             )
         seconds += solver.seconds
-    return Study(
-        kind="decimation",
-        mesh=_mesh_info(part),
-        request=request,
-        rows=rows,
-        timings_s=StudyTimings(
-            trace_s=round(traced, 4),
-            solve_s=seconds,
-            total_s=round(time.perf_counter() - start, 4),
-        ),
-    )
+    return _study("decimation", part, request, rows, traced, seconds, start)
 
 
 def check_study(

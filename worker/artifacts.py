@@ -179,6 +179,16 @@ def get_study_request(store: Store, study: str) -> tuple[str, PlanRequest, str, 
     )
 
 
+def put_cloud_request(store: Store, cloud: str, plan: str) -> None:
+    """Store which plan the point cloud job `cloud` simulates."""
+    store.put(request_key(cloud), json.dumps({"plan": plan}).encode())
+
+
+def get_cloud_plan(store: Store, cloud: str) -> str:
+    """The plan id of the point cloud job `cloud`."""
+    return str(json.loads(store.get(request_key(cloud)))["plan"])
+
+
 def get_request(store: Store, plan: str) -> tuple[str, PlanRequest]:
     """(mesh id, request) of the plan job `plan`."""
     body = json.loads(store.get(request_key(plan)))

@@ -13,10 +13,8 @@ import json
 from typing import Any
 
 from vpp_core.document import PlanDocument
-from vpp_core.plan import explicit_viewpoints
 from vpp_core.plots import neighbours_png, study_plots
-from vpp_core.pointcloud import simulate, write_ply
-from vpp_core.raytrace import make_backend
+from vpp_core.pointcloud import simulate_plan, write_ply
 from vpp_core.studies import decimation_study, resolution_sweep, study_csv
 from worker import artifacts as art
 from worker.jobs import Context, run_job, stage_progress
@@ -59,19 +57,13 @@ def _study(ctx: Context, study: str) -> dict[str, Any]:
 def _cloud(ctx: Context, cloud: str) -> dict[str, Any]:
     if ctx.store.exists(art.cloud_key(cloud)):
         return {"cloud": cloud, "cached": True}
-    plan = json.loads(ctx.store.get(art.request_key(cloud)))["plan"]
+    plan = art.get_cloud_plan(ctx.store, cloud)
     doc = PlanDocument.model_validate_json(ctx.store.get(art.plan_key(plan)))
-    mesh_id = json.loads(ctx.store.get(art.request_key(plan)))["mesh_id"]
+    mesh_id, _ = art.get_request(ctx.store, plan)
     part = art.get_part(ctx.store, mesh_id)
     ctx.meta.update(force=True, stage="point cloud", done=0, total=len(doc.viewpoints))
-    points, counts, stats = simulate(
-        part,
-        doc.sensor,
-        explicit_viewpoints(doc.viewpoints),
-        make_backend(part, doc.rays.backend),
-        doc.target.resolution_mm,
-        max_points=ctx.settings.max_cloud_points,
-        workers=ctx.settings.threads or -1,
+    points, counts, stats = simulate_plan(
+        part, doc, max_points=ctx.settings.max_cloud_points, workers=ctx.settings.threads or -1
     )
     ply = io.BytesIO()
     write_ply(ply, points, counts)

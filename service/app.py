@@ -7,10 +7,11 @@ from contextlib import asynccontextmanager
 
 from fastapi import FastAPI
 from fastapi.routing import APIRoute
+from fastapi.staticfiles import StaticFiles
 from redis import Redis
 
 from service import problems
-from service.routers import health, jobs, meshes, plans, studies
+from service.routers import health, jobs, meshes, plans, studies, viewer
 from worker.queue import make_queue
 from worker.settings import Settings, get_settings
 from worker.store import open_store
@@ -58,4 +59,6 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     problems.install(app)
     for router in (meshes.router, plans.router, studies.router, jobs.router, health.router):
         app.include_router(router)
+    app.include_router(viewer.router)
+    app.mount("/static/viewer", StaticFiles(directory=viewer.STATIC_DIR), name="viewer-static")
     return app

@@ -121,3 +121,20 @@ class Problem(BaseModel):
     detail: str | None = None
     instance: str | None = None
     errors: list[dict[str, Any]] | None = None
+
+
+class RelatedPlan(BaseModel):
+    """The plan of the same request under one formulation, and whether it is computed."""
+
+    formulation: Literal["density", "visibility"]
+    id: str
+    available: bool
+    view_url: str
+    request: PlanSubmit
+    """The body that POST /v1/plans takes to compute it."""
+
+
+class RelatedPlans(BaseModel):
+    """The `density` and `visibility` plans of one request (the viewer's toggle)."""
+
+    plans: list[RelatedPlan]

@@ -12,11 +12,12 @@ from typing import BinaryIO
 from redis import Redis
 from rq import Queue
 
-from service.models import JobOut, MeshSummary, PlanSubmit, StudySubmit
+from service.models import JobOut, MeshSummary, PlanSubmit, RelatedPlan, RelatedPlans, StudySubmit
 from vpp_core.document import PlanRequest
 from vpp_core.errors import NotFoundError, TooLargeError, VppError
 from vpp_core.mesh import load_mesh
 from vpp_core.plan import check_request
+from vpp_core.scene import geometry_scene, plan_scene
 from vpp_core.studies import check_study
 from worker import artifacts as art
 from worker import queue as jobs
@@ -167,3 +168,40 @@ def cancel_job(conn: Redis, store: Store, plan: str) -> JobOut:
 def plan_json(store: Store, plan: str) -> bytes:
     """The stored plan document (NotFoundError while it is not computed)."""
     return store.get(art.plan_key(content_id(plan, "plan")))
+
+
+def mesh_geometry(store: Store, mesh_id: str) -> bytes:
+    """The packed geometry of an uploaded mesh, for the viewer (vpp_core.scene)."""
+    return geometry_scene(art.get_part(store, content_id(mesh_id, "mesh")))
+
+
+def scene_gz(store: Store, plan: str) -> bytes:
+    """The gzipped packed per-face results of a finished plan; built from R when not stored."""
+    key = art.scene_key(content_id(plan, "plan"))
+    if store.exists(key):
+        return store.get(key)
+    doc = art.get_plan(store, plan)
+    mesh_id, request = art.get_request(store, plan)
+    counts = art.get_trace(store, art.trace_id(mesh_id, request)).counts
+    return art.put_scene(store, plan, plan_scene(art.get_part(store, mesh_id), doc, counts))
+
+
+def related_plans(store: Store, plan: str) -> RelatedPlans:
+    """The same request under both formulations: ids, whether computed, and how to submit."""
+    mesh_id, request = art.get_request(store, content_id(plan, "plan"))
+    out = []
+    for formulation in ("density", "visibility"):
+        target = request.target.model_copy(update={"formulation": formulation})
+        other = request.model_copy(update={"target": target})
+        other_id = art.plan_id(mesh_id, other)
+        submit = PlanSubmit.model_validate({**other.model_dump(), "mesh_id": mesh_id})
+        out.append(
+            RelatedPlan(
+                formulation=formulation,
+                id=other_id,
+                available=store.exists(art.plan_key(other_id)),
+                view_url=f"/v1/plans/{other_id}/view",
+                request=submit,
+            )
+        )
+    return RelatedPlans(plans=out)

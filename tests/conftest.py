@@ -74,8 +74,9 @@ def tmp_cwd(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
 
 # ---------------------------------------------------------------- the service's real parts
 
-REDIS_TEST_URL = "redis://127.0.0.1:6379/15"
-"""The machine's Redis, db 15: flushed before and after each service test, nothing else."""
+REDIS_TEST_URL = os.environ.get("VPP_TEST_REDIS_URL", "redis://127.0.0.1:6379/15")
+"""The machine's Redis, db 15 (or VPP_TEST_REDIS_URL): flushed before and after each service
+test, nothing else; two test runs at once each need a db of their own."""
 
 
 @pytest.fixture(scope="session")

@@ -28,6 +28,7 @@ from vpp_core.plots import plan_plots
 from vpp_core.pose import Viewpoints
 from vpp_core.rays import RayBackend
 from vpp_core.raytrace import Trace, join_traces, make_backend, trace_counts
+from vpp_core.scene import plan_scene
 from vpp_core.sensor import Sensor
 from worker import artifacts as art
 from worker.settings import Settings, get_settings
@@ -123,6 +124,7 @@ def _plan(ctx: Context, plan: str) -> dict[str, Any]:
     ctx.meta.update(force=True, stage="plots")
     for name, png in plan_plots(part, doc).items():  # before the document: it means done
         ctx.store.put(art.plot_key(f"plans/{plan}", name), png)
+    art.put_scene(ctx.store, plan, plan_scene(part, doc, trace.counts))
     art.put_plan(ctx.store, plan, doc)
     ctx.meta.update(force=True, stage="done")
     return {"plan": plan, "viewpoints": len(doc.viewpoints), "trace": trace_id}
@@ -145,7 +147,7 @@ def _trace(
                 ctx.store.put(art.counts_key(trace_id), art.trace_bytes(trace))
                 return views, info, trace, False
     _, views, info = art.get_views(ctx.store, trace_id)
-    trace = art.trace_from_bytes(ctx.store.get(art.counts_key(trace_id)))
+    trace = art.get_trace(ctx.store, trace_id)
     return views, info, trace, True
 
 

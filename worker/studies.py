@@ -12,7 +12,6 @@ import io
 import json
 from typing import Any
 
-from vpp_core.document import PlanDocument
 from vpp_core.plots import neighbours_png, study_plots
 from vpp_core.pointcloud import simulate_plan, write_ply
 from vpp_core.studies import decimation_study, resolution_sweep, study_csv
@@ -58,7 +57,7 @@ def _cloud(ctx: Context, cloud: str) -> dict[str, Any]:
     if ctx.store.exists(art.cloud_key(cloud)):
         return {"cloud": cloud, "cached": True}
     plan = art.get_cloud_plan(ctx.store, cloud)
-    doc = PlanDocument.model_validate_json(ctx.store.get(art.plan_key(plan)))
+    doc = art.get_plan(ctx.store, plan)
     mesh_id, _ = art.get_request(ctx.store, plan)
     part = art.get_part(ctx.store, mesh_id)
     ctx.meta.update(force=True, stage="point cloud", done=0, total=len(doc.viewpoints))

@@ -1,0 +1,157 @@
+"""How fast the plan viewer opens and draws a real plan, in headless Chromium.
+
+    python bench/viewer.py [MESH] [--units mm] [--candidates 500] [--resolution 0.18]
+                           [--formulation density|visibility] [--fit-part]
+                           [--repeat 3] [--screenshot docs/viewer.png] [--redis-url URL]
+
+Plans MESH (default: the sample bushing) through the API (uvicorn on loopback, one RQ worker,
+paper sensor), then per repetition opens /v1/plans/{id}/view in a fresh browser context (no
+cache) and measures:
+
+- `open_s`: navigation to `vppViewer.ready` (plan document, geometry and scene fetched,
+  parsed and drawn); `page_load_s` the same from the page's own clock;
+- the bytes of the two binary resources, the scene also as sent (gzipped);
+- `select_ms`: one camera selected (the part recoloured) and drawn;
+- `frame_ms`: mean over a full orbit of 60 drawn frames; `frame_ms_no_labels` with the number
+  labels hidden. Chromium runs WebGL on SwiftShader (the CPU) here: a GPU draws faster.
+
+One JSON line per repetition on stdout. --screenshot saves the page with the camera looking
+most nearly the eye's way selected (--fit-part: the part framed, not the whole scene).
+
+Redis: redis://127.0.0.1:6379/11 (db 11 flushed before and after) or --redis-url.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import socket
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+FLAGS = ["--no-sandbox", "--no-first-run", "--disable-background-networking",
+         "--disable-component-update", "--disable-sync", "--disable-quic"]  # fmt: skip
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("mesh", nargs="?")
+    ap.add_argument("--units", default="mm")
+    ap.add_argument("--candidates", type=int, default=500)
+    ap.add_argument("--resolution", type=float, default=0.18)
+    ap.add_argument("--formulation", choices=["density", "visibility"], default="density")
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--screenshot")
+    ap.add_argument("--fit-part", action="store_true", help="screenshot framing the part only")
+    ap.add_argument("--redis-url", default="redis://127.0.0.1:6379/11")
+    args = ap.parse_args()
+    with tempfile.TemporaryDirectory() as store:
+        os.environ.update(VPP_REDIS_URL=args.redis_url, VPP_STORE_URL=store, VPP_QUEUE="vpp-bench")
+        from redis import Redis  # noqa: TID251
+
+        Redis.from_url(args.redis_url).flushdb()
+        try:
+            run(args)
+        finally:
+            Redis.from_url(args.redis_url).flushdb()
+
+
+def run(args: argparse.Namespace) -> None:
+    import httpx
+    import uvicorn
+    from playwright.sync_api import sync_playwright
+
+    from service.app import create_app
+    from vpp_core.samples import sample_stl
+    from worker.pool import start_workers, stop_workers
+    from worker.settings import Settings
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    server = uvicorn.Server(uvicorn.Config(create_app(Settings()), port=port, log_level="error"))
+    threading.Thread(target=server.run, daemon=True).start()
+    while not server.started:
+        time.sleep(0.05)
+    url = f"http://127.0.0.1:{port}"
+    procs = start_workers(args.redis_url, 1, threads=None, prefix="bench", log=sys.stderr.buffer)
+    try:
+        client = httpx.Client(base_url=url, timeout=120)
+        name = Path(args.mesh).name if args.mesh else "bushing.stl"
+        data = Path(args.mesh).read_bytes() if args.mesh else sample_stl()
+        r = client.post("/v1/meshes", files={"file": (name, data)}, data={"units": args.units})
+        r.raise_for_status()
+        mesh = r.json()["id"]
+        target = {"resolution_mm": args.resolution, "formulation": args.formulation}
+        body = {"mesh_id": mesh, "candidates": {"count": args.candidates}, "target": target}
+        plan = client.post("/v1/plans", json=body).json()["id"]
+        t0 = time.perf_counter()
+        while client.get(f"/v1/jobs/{plan}").json()["status"] in ("queued", "running"):
+            time.sleep(0.5)
+        plan_s = time.perf_counter() - t0
+        doc = client.get(f"/v1/plans/{plan}").json()
+        scene = client.get(f"/v1/plans/{plan}/scene")  # gzip on the wire
+        sizes = {
+            "geometry_bytes": len(client.get(f"/v1/meshes/{mesh}/geometry").content),
+            "scene_bytes": len(scene.content),
+            "scene_wire_bytes": scene.num_bytes_downloaded,
+        }
+        with sync_playwright() as p:
+            browser = p.chromium.launch(executable_path="/usr/bin/chromium", args=FLAGS)
+            for rep in range(args.repeat):
+                measure(browser, url, plan, doc, sizes, plan_s, name, rep, args)
+            browser.close()
+    finally:
+        stop_workers(procs, wait_s=5)
+        server.should_exit = True
+
+
+def measure(browser, url, plan, doc, sizes, plan_s, name, rep, args) -> None:  # type: ignore[no-untyped-def]
+    context = browser.new_context(viewport={"width": 1400, "height": 820})
+    page = context.new_page()
+    errors: list[str] = []
+    page.on("console", lambda m: errors.extend([m.text] if m.type == "error" else []))
+    t0 = time.perf_counter()
+    page.goto(f"{url}/v1/plans/{plan}/view")
+    page.wait_for_function("window.vppViewer && window.vppViewer.ready", timeout=300_000)
+    open_s = time.perf_counter() - t0
+    select_ms = page.evaluate(
+        "async () => { const t = performance.now(); window.vppViewer.select(0);"
+        " await window.vppViewer.drawn(); return performance.now() - t; }"
+    )
+    frame_ms = page.evaluate("window.vppViewer.orbit(60)")
+    page.evaluate("window.vppViewer.show('labels', false)")
+    bare_ms = page.evaluate("window.vppViewer.orbit(60)")
+    page.evaluate("window.vppViewer.show('labels', true)")
+    if args.screenshot and rep == 0:  # the camera looking most nearly the eye's way, selected
+        page.evaluate("window.vppViewer.orbit(8)")
+        if args.fit_part:
+            page.evaluate("window.vppViewer.fit(false)")
+        page.evaluate("window.vppViewer.select(window.vppViewer.facing())")
+        page.evaluate("window.vppViewer.drawn()")
+        page.screenshot(path=args.screenshot)
+    line = {
+        "mesh": name,
+        "faces": doc["mesh"]["faces"],
+        "viewpoints": len(doc["viewpoints"]),
+        "plan_s": round(plan_s, 2),
+        **sizes,
+        "open_s": round(open_s, 3),
+        "page_load_s": page.evaluate("window.vppViewer.loadSeconds"),
+        "select_ms": round(select_ms, 1),
+        "frame_ms": round(frame_ms, 1),
+        "frame_ms_no_labels": round(bare_ms, 1),
+        "console_errors": errors,
+    }
+    print(json.dumps(line), flush=True)
+    context.close()
+
+
+if __name__ == "__main__":
+    main()

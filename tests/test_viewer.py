@@ -1,0 +1,280 @@
+"""The plan viewer end to end: the API on loopback, real workers, a real headless Chromium.
+
+The page is checked against independent computations, not against a golden image: what it
+draws through a plan camera is compared pixel by pixel with a trimesh/Embree ray cast of the
+same pinhole (SPEC §8 convention) and the face colours the page says it shows.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import shutil
+import socket
+import threading
+import time
+from collections.abc import Iterator
+from typing import Any
+
+import numpy as np
+import pytest
+
+from tests.test_service_jobs import submit, upload_sample, wait
+from vpp_core.mesh import load_mesh
+from vpp_core.samples import sample_stl
+from vpp_core.scene import unpack
+
+pytestmark = pytest.mark.slow
+SENSOR = {"width_px": 480, "height_px": 300}
+VIEWPORT = {"width": 1200, "height": 700}
+BACKGROUND = (243, 244, 246)
+"""The canvas clear colour (#f3f4f6)."""
+CHROMIUM_FLAGS = [
+    "--no-sandbox",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--disable-quic",
+]
+
+
+def chromium_path() -> str | None:
+    """VPP_CHROMIUM, else a chromium on PATH."""
+    return (
+        os.environ.get("VPP_CHROMIUM")
+        or shutil.which("chromium")
+        or shutil.which("chromium-browser")
+    )
+
+
+@pytest.fixture(scope="module")
+def browser() -> Iterator[Any]:
+    """Headless Chromium driven by Playwright (skips with a message where either is missing)."""
+    missing = pytest.fail if os.environ.get("VPP_REQUIRE_BROWSER") else pytest.skip
+    try:
+        from playwright import sync_api
+    except ImportError:
+        missing("no playwright: pip install -e '.[test]'")
+    path = chromium_path()
+    if not path:
+        missing("no chromium: apt-get install chromium, or set VPP_CHROMIUM")
+    with sync_api.sync_playwright() as p:
+        b = p.chromium.launch(executable_path=path, args=CHROMIUM_FLAGS)
+        yield b
+        b.close()
+
+
+@pytest.fixture
+def live(api, start_workers) -> Iterator[tuple[Any, str]]:
+    """(TestClient, base URL): the same app served by uvicorn on loopback, one worker."""
+    import uvicorn
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    server = uvicorn.Server(uvicorn.Config(api.app, host="127.0.0.1", port=port, log_level="error"))
+    thread = threading.Thread(target=server.run, daemon=True)
+    thread.start()
+    deadline = time.monotonic() + 10
+    while not server.started and time.monotonic() < deadline:
+        time.sleep(0.02)
+    start_workers(1)
+    yield api, f"http://127.0.0.1:{port}"
+    server.should_exit = True
+    thread.join(10)
+
+
+class Page:
+    """A viewer page with its console errors collected."""
+
+    def __init__(self, browser: Any, url: str) -> None:
+        self.page = browser.new_page(viewport=VIEWPORT, device_scale_factor=1)
+        self.errors: list[str] = []
+        self.page.on("console", lambda m: self.errors.extend([m.text] if m.type == "error" else []))
+        self.page.on("pageerror", lambda e: self.errors.append(str(e)))
+        self.page.goto(url)
+        self.ready()
+
+    def ready(self) -> None:
+        self.page.wait_for_function(
+            "window.vppViewer && (window.vppViewer.ready || window.vppViewer.failed)",
+            timeout=60_000,
+        )
+        assert self.js("window.vppViewer.failed") is None
+
+    def js(self, expr: str, arg: Any = None) -> Any:
+        return self.page.evaluate(expr, arg)
+
+    def drawn(self) -> None:
+        """Wait until a frame is drawn after now."""
+        self.js("window.vppViewer.drawn()")
+
+    def canvas_rgb(self) -> np.ndarray:
+        from PIL import Image
+
+        png = self.page.locator("#canvas").screenshot()
+        return np.asarray(Image.open(io.BytesIO(png)).convert("RGB")).astype(int)
+
+
+def planned(client: Any, formulation: str = "density") -> tuple[str, str, dict[str, Any]]:
+    """(mesh id, plan id, plan document) of the sample part, computed by the worker."""
+    mesh = upload_sample(client)
+    body = {"mesh_id": mesh, "sensor": SENSOR, "candidates": {"count": 40},
+            "target": {"resolution_mm": 1.0, "formulation": formulation}}  # fmt: skip
+    plan = submit(client, body)
+    assert wait(client, plan)["status"] == "succeeded"
+    return mesh, plan, client.get(f"/v1/plans/{plan}").json()
+
+
+def test_the_page_draws_the_plan_and_a_clicked_camera_shows_its_pose(live, browser) -> None:
+    client, url = live
+    mesh, plan, doc = planned(client)
+    page = Page(browser, f"{url}/v1/plans/{plan}/view")
+    k_views = len(doc["viewpoints"])
+    assert k_views >= 2
+    assert page.js("window.vppViewer.cameraCount()") == k_views
+    assert page.page.locator(".cam-label").count() == k_views
+    assert page.js("window.vppViewer.frustumSegments()") == 12 * k_views
+    summary = page.js("window.vppViewer.summary")
+    assert summary["viewpoints"] == f"{k_views} of {len(doc['candidates'])} candidates"
+    assert doc["solver"]["status"] in summary["solver"]
+    # the legend counts are the scene file's states
+    _, arrays = unpack(client.get(f"/v1/plans/{plan}/scene").content)
+    counts = np.bincount(arrays["state"], minlength=5).tolist()
+    assert page.js("window.vppViewer.stateCounts") == counts
+    assert page.page.locator("#legend").inner_text().count(" faces") >= 4
+    # faces of the fixed states wear their legend swatch; met and unmet faces none of them
+    colours = np.array(page.js("window.vppViewer.faceColours()")).reshape(-1, 3)
+    swatches = page.js(
+        "[...document.querySelectorAll('#legend .swatch')]"
+        ".map(e => getComputedStyle(e).backgroundColor.match(/\\d+/g).map(Number))"
+    )
+    assert len(swatches) == 3
+    for state, rgb in zip((2, 3, 4), swatches, strict=True):
+        assert (colours[arrays["state"] == state] == rgb).all()
+        graded = np.isin(arrays["state"], [0, 1])
+        assert not (colours[graded] == rgb).all(axis=1).any()
+
+    # click a camera's pin in the canvas (labels hidden, so the 3D pick answers)
+    page.js("window.vppViewer.show('labels', false)")
+    page.drawn()
+    box = page.page.locator("#canvas").bounding_box()
+    pins = [page.js("k => window.vppViewer.screenPosition(k)", k) for k in range(k_views)]
+    k = _most_isolated(pins, box)
+    page.page.mouse.click(box["x"] + pins[k][0], box["y"] + pins[k][1])
+    assert page.js("window.vppViewer.selected()") == k
+    v = doc["viewpoints"][k]
+    shown = page.page.locator("#cam-position").inner_text()
+    np.testing.assert_allclose(_numbers(shown), v["position"], atol=6e-4)
+    np.testing.assert_allclose(
+        _numbers(page.page.locator("#cam-gaze").inner_text()), v["gaze"], atol=6e-4
+    )
+    n_seen = int(arrays["view_offsets"][k + 1] - arrays["view_offsets"][k])
+    assert page.page.locator("#cam-faces").inner_text().startswith(f"{n_seen} faces")
+    matrix = np.array(_numbers(page.page.locator("#cam-matrix").inner_text())).reshape(4, 4)
+    np.testing.assert_allclose(matrix, v["camera_to_world"], atol=6e-5)
+
+    # a number label is a camera too; the step buttons walk the visiting order
+    page.js("window.vppViewer.show('labels', true)")
+    other = (k + 1) % k_views
+    page.page.locator(f".cam-label[data-k='{other}']").click()
+    assert page.js("window.vppViewer.selected()") == other
+    page.page.locator("#next").click()
+    assert page.js("window.vppViewer.selected()") == (other + 1) % k_views
+    assert page.errors == []
+
+
+def test_looking_through_a_camera_shows_what_a_ray_cast_sees(live, browser) -> None:
+    """Pixel by pixel: hit or not, and the colour of the face an independent ray cast finds."""
+    client, url = live
+    _, plan, doc = planned(client)
+    page = Page(browser, f"{url}/v1/plans/{plan}/view")
+    _, arrays = unpack(client.get(f"/v1/plans/{plan}/scene").content)
+    part = load_mesh(sample_stl(), "stl")
+    for k in range(min(2, len(doc["viewpoints"]))):
+        look = page.js("k => window.vppViewer.look(k)", k)
+        page.js("window.vppViewer.show('frusta', false); window.vppViewer.show('tour', false)")
+        page.js("window.vppViewer.show('labels', false); window.vppViewer.setShading(false)")
+        page.js("document.getElementById('frame').hidden = true")
+        page.drawn()
+        image = page.canvas_rgb()
+        h, w, _ = image.shape
+        assert (w, h) == (look["width"], look["height"])
+        faces = _ray_cast(part, doc["viewpoints"][k], look["f"], w, h)
+        drawn = (image != BACKGROUND).any(axis=2)
+        hit = faces >= 0
+        iou = (drawn & hit).sum() / (drawn | hit).sum()
+        assert hit.sum() > 2000 and iou > 0.98, (k, iou)
+        # the colours shown: the face's own where camera k sees it, faded elsewhere
+        base = np.array(page.js("window.vppViewer.faceColours()")).reshape(-1, 3)
+        shown = np.array(page.js("window.vppViewer.shownColours()")).reshape(-1, 3)
+        mine = np.zeros(len(base), bool)
+        mine[arrays["view_faces"][arrays["view_offsets"][k] : arrays["view_offsets"][k + 1]]] = 1
+        assert (shown[mine] == base[mine]).all() and (shown[~mine] != base[~mine]).any(axis=1).all()
+        both = drawn & hit
+        close = (np.abs(image[both] - shown[faces[both]]) <= 2).all(axis=1)
+        assert close.mean() > 0.98, (k, close.mean())
+    assert page.errors == []
+
+
+def test_the_formulation_toggle_computes_and_shows_the_other_plan(live, browser) -> None:
+    client, url = live
+    _, plan, doc = planned(client, "density")
+    page = Page(browser, f"{url}/v1/plans/{plan}/view")
+    related = {r["formulation"]: r for r in page.js("window.vppViewer.related")}
+    assert related["density"]["id"] == plan and not related["visibility"]["available"]
+    page.page.locator("#formulations button[data-formulation=visibility]").click()
+    page.page.wait_for_function(f"window.vppViewer.plan === '{related['visibility']['id']}'")
+    page.ready()
+    other = client.get(f"/v1/plans/{related['visibility']['id']}").json()
+    assert other["target"]["formulation"] == "visibility"
+    assert page.js("window.vppViewer.cameraCount()") == len(other["viewpoints"])
+    assert page.page.url.endswith(f"/v1/plans/{related['visibility']['id']}/view")
+    active = page.page.locator("#formulations button.active").inner_text()
+    assert active == "visibility"
+    page.page.locator("#formulations button[data-formulation=density]").click()
+    page.page.wait_for_function(f"window.vppViewer.plan === '{plan}'")
+    page.ready()
+    assert page.js("window.vppViewer.cameraCount()") == len(doc["viewpoints"])
+    assert page.errors == []
+
+
+def test_the_page_of_a_running_plan_waits_for_it_and_an_unknown_one_says_so(live, browser) -> None:
+    client, url = live
+    page = Page.__new__(Page)
+    page.page = browser.new_page(viewport=VIEWPORT)
+    page.page.goto(f"{url}/v1/plans/{'0' * 64}/view")
+    page.page.wait_for_function("window.vppViewer.failed", timeout=10_000)
+    assert "no job" in page.js("window.vppViewer.failed") or "not" in page.js(
+        "window.vppViewer.failed"
+    )
+    assert page.page.locator("#status.error").is_visible()
+
+
+def _ray_cast(part: Any, view: dict[str, Any], f: float, w: int, h: int) -> np.ndarray:
+    """(h, w) int: first face hit through each canvas pixel centre, -1 for none (trimesh)."""
+    c2w = np.array(view["camera_to_world"])
+    u, v = np.meshgrid(np.arange(w) + 0.5 - w / 2, np.arange(h) + 0.5 - h / 2)
+    cam = np.stack([u / f, v / f, np.ones_like(u)], axis=-1).reshape(-1, 3)
+    dirs = cam @ c2w[:3, :3].T
+    origins = np.broadcast_to(c2w[:3, 3], dirs.shape)
+    first = part.trimesh().ray.intersects_first(origins, dirs)
+    return np.asarray(first).reshape(h, w)
+
+
+def _numbers(text: str) -> list[float]:
+    import re
+
+    return [float(x) for x in re.findall(r"-?\d+\.\d+(?:e-?\d+)?", text)]
+
+
+def _most_isolated(pins: list[Any], box: dict[str, float]) -> int:
+    """The camera whose pin is on the canvas and farthest from every other pin."""
+    pts = np.array([p if p else (np.nan, np.nan) for p in pins], float)
+    inside = (pts[:, 0] > 5) & (pts[:, 0] < box["width"] - 5)
+    inside &= (pts[:, 1] > 5) & (pts[:, 1] < box["height"] - 5)
+    d = np.linalg.norm(pts[:, None] - pts[None], axis=2)
+    np.fill_diagonal(d, np.inf)
+    score = np.where(inside, np.nanmin(d, axis=1), -1)
+    return int(np.argmax(score))

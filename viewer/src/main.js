@@ -1,0 +1,252 @@
+// The plan viewer page: /v1/plans/{id}/view. Loads the plan document, the mesh geometry and
+// the plan's per-face results, draws them, and exposes `window.vppViewer` for tests and scripts.
+import { AuthError, getBinary, getJson, postJson, setKey, base } from './api.js';
+import { unpack } from './packed.js';
+import { DESCRIPTIONS, FIXED, SPAN, faceColours, gradient } from './palette.js';
+import { PlanScene } from './scene3d.js';
+
+const $ = (id) => document.getElementById(id);
+const POLL_MS = 1000;
+const PLAY_MS = 1200;
+const state = { plan: null, doc: null, meshId: null, geometry: null, scene: null, playing: null };
+const view = new PlanScene($('canvas'), $('labels'));
+view.onPick = (k) => select(k);
+view.onInteract = () => { $('frame').hidden = true; view.frame = null; };
+
+function status(text, error = false) {
+  $('status').textContent = text;
+  $('status').classList.toggle('error', error);
+}
+
+const fmt = (x, d = 3) => (x === null || x === undefined ? '—' : Number(x).toFixed(d));
+const pct = (x) => `${(100 * x).toFixed(1)} %`;
+
+/** Wait for the plan's job while it runs; the plan document once it has succeeded. */
+async function planDocument(plan) {
+  for (;;) {
+    const job = await getJson(`/v1/jobs/${plan}`); // asked first: no 404 while it runs
+    if (job.status === 'succeeded') return getJson(`/v1/plans/${plan}`);
+    if (job.status === 'failed' || job.status === 'canceled') {
+      throw new Error(`the plan's job ${job.status}: ${job.error?.detail ?? ''}`);
+    }
+    const p = job.progress;
+    status(`Plan ${job.status}${p ? `: ${p.stage} ${p.done}/${p.total}` : ''}…`);
+    await new Promise((r) => setTimeout(r, POLL_MS));
+  }
+}
+
+async function load(plan) {
+  const t0 = performance.now();
+  status('Loading plan…');
+  $('plan-id').textContent = plan.slice(0, 12);
+  $('plan-id').title = plan;
+  const doc = await planDocument(plan);
+  status('Loading geometry and results…');
+  const [geometry, scene] = await Promise.all([
+    doc.mesh.id === state.meshId ? state.geometry : getBinary(`/v1/meshes/${doc.mesh.id}/geometry`)
+      .then(unpack),
+    getBinary(`/v1/plans/${plan}/scene`).then(unpack),
+  ]);
+  if (doc.mesh.id !== state.meshId) {
+    view.setPart(geometry.arrays.vertices, geometry.arrays.faces);
+    state.meshId = doc.mesh.id;
+    state.geometry = geometry;
+  }
+  const a = scene.arrays;
+  const colours = faceColours(a.state, a.resolution_mm, doc.target.resolution_mm);
+  const first = state.doc === null;
+  Object.assign(state, { plan, doc, scene });
+  view.setPlan(colours, doc.viewpoints, doc.sensor, a.view_offsets, a.view_faces);
+  if (first) view.fit(true);
+  summary(doc, scene);
+  legend(doc, scene);
+  links(plan);
+  stepper(doc.viewpoints.length);
+  select(null);
+  await formulations(plan);
+  status('');
+  api.loadSeconds = (performance.now() - t0) / 1000;
+  api.ready = true;
+}
+
+function summary(doc, scene) {
+  const m = doc.metrics;
+  const s = doc.solver;
+  const rows = [
+    ['part', `${doc.mesh.faces.toLocaleString()} faces, ${fmt(doc.mesh.area_mm2, 1)} mm²`],
+    ['target', `r̄ = ${doc.target.resolution_mm} mm, ${doc.target.formulation}`],
+    ['viewpoints', `${doc.viewpoints.length} of ${doc.candidates.length} candidates`],
+    ['solver', `${s.name}: ${s.status}, objective ${fmt(s.objective, 2)}, bound ${fmt(s.bound, 2)}, gap ${fmt(s.gap, 4)}`],
+    ['coverage', `${pct(m.coverage.area)} of area (max ${pct(m.coverage.max_area)}), ${pct(m.coverage.faces)} of faces`],
+    ['resolution met', `${pct(m.resolution.met_area)} of area (max ${pct(m.resolution.max_met_area)}), ${pct(m.resolution.met_faces)} of faces`],
+    ['median r*', `${fmt(m.resolution.median_mm)} mm`],
+    ['uncoverable', `${doc.uncoverable.faces} faces, ${fmt(doc.uncoverable.area_mm2, 2)} mm²`],
+    ['tour', `${fmt(doc.tour_length_mm, 0)} mm`],
+    ['C mean (eq. 4)', fmt(m.paper.C_mean, 4)],
+  ];
+  if (doc.partial) rows.splice(5, 0, ['partial cover', `${pct(doc.partial.covered_fraction)} of coverable area (asked ${pct(doc.partial.min_coverage)})`]);
+  $('metrics').innerHTML = rows.map(([k, v]) => `<tr><th>${k}</th><td>${v}</td></tr>`).join('');
+  api.summary = Object.fromEntries(rows);
+}
+
+function legend(doc, scene) {
+  const t = doc.target.resolution_mm;
+  const counts = [0, 0, 0, 0, 0];
+  for (const s of scene.arrays.state) counts[s] += 1;
+  const ticks = [0, 0.5, 1, 1.5, 2].map((x) => `<span style="left:${(100 * x) / SPAN}%">${fmt(x * t, 2)}</span>`);
+  $('legend').innerHTML = `<h2>achieved resolution r* (mm), target ${t} mm</h2>
+    <div class="bar" style="background:${gradient('met')} 0 0/50% 100% no-repeat, ${gradient('unmet')} 100% 0/50% 100% no-repeat">
+      <div class="target" style="left:calc(${100 / SPAN}% - 1px)" title="target r̄"></div></div>
+    <div class="ticks">${ticks.join('')}</div>
+    <ul class="legend-list">
+      <li>met (r* ≤ r̄): ${counts[0]} faces · not met: ${counts[1]} faces (beyond ${SPAN}·r̄: darkest)</li>
+      ${['uncovered', 'uncoverable', 'excluded'].map((k, i) => `<li><span class="swatch" style="background:rgb(${FIXED[k].join(',')})"></span>${DESCRIPTIONS[k]}: ${counts[i + 2]} faces</li>`).join('')}
+    </ul>`;
+  api.stateCounts = counts;
+}
+
+function links(plan) {
+  const p = `${base}/v1/plans/${plan}`;
+  $('links').innerHTML = `<h2>documents</h2><a href="${p}">plan document (JSON)</a> ·
+    <a href="${p}/plots/histogram.png">histogram</a> · <a href="${p}/plots/cameras.png">cameras</a>`;
+}
+
+async function formulations(plan) {
+  const related = await getJson(`/v1/plans/${plan}/related`);
+  api.related = related.plans;
+  $('formulations').innerHTML = '';
+  for (const r of related.plans) {
+    const b = document.createElement('button');
+    b.dataset.formulation = r.formulation;
+    b.textContent = r.available || r.id === plan ? r.formulation : `${r.formulation} (compute)`;
+    b.classList.toggle('active', r.id === plan);
+    b.addEventListener('click', () => switchTo(r));
+    $('formulations').append(b);
+  }
+}
+
+async function switchTo(related) {
+  if (related.id === state.plan) return;
+  api.ready = false;
+  if (!related.available) await postJson('/v1/plans', related.request);
+  history.replaceState(null, '', `${base}${related.view_url}`);
+  await run(related.id);
+}
+
+function stepper(n) {
+  $('step').max = String(Math.max(n, 1));
+  $('step').disabled = n === 0;
+}
+
+function select(k) {
+  view.select(k);
+  $('look').disabled = k === null;
+  if (k === null) { $('camera-info').hidden = true; return; }
+  $('step').value = String(k + 1);
+  const v = state.doc.viewpoints[k];
+  const faces = view.facesOf(k);
+  const met = faces.reduce((n, f) => n + (state.scene.arrays.state[f] === 0 ? 1 : 0), 0);
+  const vec = (x) => `[${x.map((c) => c.toFixed(3)).join(', ')}]`;
+  const c2w = v.camera_to_world.map((r) => r.map((c) => c.toFixed(4).padStart(10)).join(' ')).join('\n');
+  $('camera-info').hidden = false;
+  $('camera-info').innerHTML = `<h2>viewpoint ${k + 1} of ${state.doc.viewpoints.length} (candidate ${v.id})</h2>
+    <table>
+      <tr><th>position</th><td id="cam-position">${vec(v.position)}</td></tr>
+      <tr><th>gaze</th><td id="cam-gaze">${vec(v.gaze)}</td></tr>
+      <tr><th>up</th><td id="cam-up">${vec(v.up)}</td></tr>
+      <tr><th>sees</th><td id="cam-faces">${faces.length} faces, ${met} of them at r̄ after the whole plan</td></tr>
+    </table>
+    <div>camera_to_world (OpenCV frame, mm)</div><pre id="cam-matrix">${c2w}</pre>`;
+}
+
+function step(delta) {
+  const n = state.doc.viewpoints.length;
+  if (!n) return;
+  const k = view.selected === null ? (delta > 0 ? 0 : n - 1) : (view.selected + delta + n) % n;
+  select(k);
+  if (view.frame) look();
+}
+
+function look() {
+  if (view.selected === null) return null;
+  const out = view.lookThrough(view.selected);
+  const [x, y, w, h] = out.frame;
+  Object.assign($('frame').style, { left: `${x}px`, top: `${y}px`, width: `${w}px`, height: `${h}px` });
+  $('frame').hidden = false;
+  return out;
+}
+
+function wire() {
+  $('prev').onclick = () => step(-1);
+  $('next').onclick = () => step(1);
+  $('step').oninput = (e) => select(Number(e.target.value) - 1);
+  $('play').onclick = () => {
+    if (state.playing) { clearInterval(state.playing); state.playing = null; $('play').textContent = 'play'; return; }
+    $('play').textContent = 'stop';
+    state.playing = setInterval(() => step(1), PLAY_MS);
+  };
+  $('look').onclick = look;
+  $('fit').onclick = () => { $('frame').hidden = true; view.fit(true); };
+  $('fit-part').onclick = () => { $('frame').hidden = true; view.fit(false); };
+  $('clear').onclick = () => select(null);
+  for (const what of ['frusta', 'tour', 'labels']) {
+    $(`show-${what}`).onchange = (e) => view.show(what, e.target.checked);
+  }
+  $('shading').onchange = (e) => view.setShading(e.target.checked);
+  addEventListener('keydown', (e) => {
+    if (e.key === 'ArrowRight') step(1);
+    if (e.key === 'ArrowLeft') step(-1);
+  });
+  $('key-form').onsubmit = (e) => {
+    e.preventDefault();
+    setKey($('key').value);
+    $('key-form').hidden = true;
+    run(state.plan);
+  };
+}
+
+async function run(plan) {
+  state.plan = plan;
+  try {
+    await load(plan);
+  } catch (e) {
+    if (e instanceof AuthError) {
+      status('An API key is needed (or the one given was refused).', true);
+      $('key-form').hidden = false;
+    } else {
+      status(String(e.message || e), true);
+      console.warn(e);
+    }
+    api.failed = String(e.message || e);
+  }
+}
+
+// for tests and scripts: the page's state and a few actions
+const api = {
+  ready: false,
+  get plan() { return state.plan; },
+  get doc() { return state.doc; },
+  cameraCount: () => view.labels?.length ?? 0,
+  frustumSegments: () => (view.frusta?.geometry.getAttribute('position').count ?? 0) / 2,
+  screenPosition: (k) => view.screenPosition(k),
+  selected: () => view.selected,
+  select,
+  look: (k) => { select(k); return look(); },
+  faceColours: () => Array.from(view.colours),
+  shownColours: () => Array.from(view.shown),
+  facing: () => view.facing(),
+  fit: (all = true) => view.fit(all),
+  setShading: (on) => { $('shading').checked = on; view.setShading(on); },
+  show: (what, on) => view.show(what, on),
+  frames: () => view.frames || 0,
+  drawn: () => view.drawn(),
+  /** Mean milliseconds per frame over a full turn of the eye in n drawn steps (benchmarks). */
+  orbit: async (n = 60) => {
+    const t0 = performance.now();
+    for (let i = 0; i < n; i++) { view.rotate((2 * Math.PI) / n); await view.drawn(); }
+    return (performance.now() - t0) / n;
+  },
+};
+window.vppViewer = api;
+wire();
+run(location.pathname.slice(location.pathname.indexOf('/v1/plans/') + 10).split('/')[0]);

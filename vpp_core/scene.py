@@ -1,0 +1,151 @@
+"""A plan's 3D scene for the browser viewer: geometry and per-face results as packed typed arrays.
+
+Per face i: the achieved resolution r*_i (mm, SPEC §5, inf where no selected view reaches it)
+and a state for the colour legend; per selected view (visiting order): the faces it sees
+(R_ij > 0), as CSR offsets into one id array. `pack` lays named arrays out so that a browser
+can view them with zero copies (`new Float32Array(buffer, offset, length)`):
+
+    b"VPPS" | uint32 LE header length | header JSON (utf-8) | padding | arrays, 8-byte aligned
+
+header = {"arrays": {name: {"dtype", "shape", "offset"}}, ...meta}, offsets from the file start.
+"""
+
+from __future__ import annotations
+
+import json
+import struct
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import scipy.sparse as sp
+
+from vpp_core.density import density_matrix, meets
+from vpp_core.document import PlanDocument
+from vpp_core.errors import VppError
+from vpp_core.mesh import Part
+from vpp_core.metrics import resolution_mm
+
+MAGIC = b"VPPS"
+ALIGN = 8
+DTYPES = ("float32", "uint32", "uint8")
+"""Array types a browser reads natively (little-endian)."""
+
+MET, UNMET, UNCOVERED, UNCOVERABLE, EXCLUDED = range(5)
+"""Face states: r* ≤ r̄; seen by the plan but r* > r̄; seen by some candidate but by no selected
+view; counted but seen by no candidate; not counted (degenerate or duplicate face)."""
+STATE_NAMES = ("met", "unmet", "uncovered", "uncoverable", "excluded")
+
+
+@dataclass(frozen=True, eq=False)
+class FaceResults:
+    """Per-face results of a selection J* (K views, in visiting order)."""
+
+    resolution_mm: np.ndarray  # (M,) float32 achieved r* in mm, inf where δ* = 0
+    state: np.ndarray  # (M,) uint8, one of MET … EXCLUDED
+    view_offsets: np.ndarray  # (K+1,) uint32 CSR offsets into view_faces
+    view_faces: np.ndarray  # (nnz,) uint32 faces seen by each selected view, ascending
+
+
+def face_results(
+    counts: sp.sparray,
+    areas: np.ndarray,
+    counted: np.ndarray,
+    selected: np.ndarray,
+    target_mm: float,
+) -> FaceResults:
+    """Results per face of R (M, N) for the views `selected` (K,), areas (M,) mm², r̄ in mm."""
+    r = sp.csc_array(counts)
+    achieved = np.asarray(density_matrix(r, areas)[:, selected].sum(axis=1)).ravel()
+    sub = sp.csc_array(r[:, selected])
+    sub.sort_indices()
+    seen_sel = np.bincount(sub.indices, minlength=r.shape[0]) > 0
+    seen_any = np.diff(sp.csr_array(r).indptr) > 0
+    state = np.full(r.shape[0], UNMET, np.uint8)
+    state[meets(achieved, 1.0 / target_mm)] = MET
+    state[~seen_sel] = UNCOVERED
+    state[~seen_any] = UNCOVERABLE
+    state[~counted] = EXCLUDED
+    return FaceResults(
+        resolution_mm=resolution_mm(achieved).astype(np.float32),
+        state=state,
+        view_offsets=sub.indptr.astype(np.uint32),
+        view_faces=sub.indices.astype(np.uint32),
+    )
+
+
+def geometry_arrays(part: Part) -> dict[str, np.ndarray]:
+    """The part for drawing: vertices (V, 3) float32 mm and faces (M, 3) uint32."""
+    return {
+        "vertices": part.vertices.astype(np.float32),
+        "faces": part.faces.astype(np.uint32),
+    }
+
+
+def result_arrays(results: FaceResults) -> dict[str, np.ndarray]:
+    """The per-face and per-view arrays of `results`, by name."""
+    return {
+        "resolution_mm": results.resolution_mm,
+        "state": results.state,
+        "view_offsets": results.view_offsets,
+        "view_faces": results.view_faces,
+    }
+
+
+def pack(arrays: dict[str, np.ndarray], **meta: Any) -> bytes:
+    """Named arrays (float32, uint32 or uint8) and JSON metadata as one binary scene file."""
+    layout: dict[str, dict[str, Any]] = {}
+    blobs: list[bytes] = []
+    bases: list[int] = []
+    for name, a in arrays.items():
+        if a.dtype.name not in DTYPES:
+            raise VppError(f"array {name}: dtype {a.dtype} is not one of {DTYPES}")
+        data = np.ascontiguousarray(a, a.dtype.newbyteorder("<")).tobytes()
+        layout[name] = {"dtype": a.dtype.name, "shape": list(a.shape), "offset": 0}
+        bases.append(sum(len(b) for b in blobs))
+        blobs.append(data + bytes(-len(data) % ALIGN))
+    doc = {"arrays": layout, **meta}
+    size = 0
+    while True:  # the offsets are in the header, so its padded length is found by iteration
+        for rec, base in zip(layout.values(), bases, strict=True):
+            rec["offset"] = size + base
+        text = json.dumps(doc, separators=(",", ":"), allow_nan=False).encode()
+        total = len(MAGIC) + 4 + len(text)
+        total += -total % ALIGN
+        if total == size:
+            head = MAGIC + struct.pack("<I", len(text)) + text
+            return head + bytes(size - len(head)) + b"".join(blobs)
+        size = total
+
+
+def unpack(data: bytes) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+    """Inverse of `pack`: (metadata, arrays)."""
+    if data[:4] != MAGIC:
+        raise VppError("not a vpp scene file")
+    (n,) = struct.unpack("<I", data[4:8])
+    doc = json.loads(data[8 : 8 + n])
+    arrays = {}
+    for name, rec in doc.pop("arrays").items():
+        dtype = np.dtype(rec["dtype"]).newbyteorder("<")
+        count = int(np.prod(rec["shape"]))
+        arrays[name] = np.frombuffer(data, dtype, count, rec["offset"]).reshape(rec["shape"])
+    return doc, arrays
+
+
+def plan_scene(part: Part, doc: PlanDocument, counts: sp.sparray) -> bytes:
+    """The packed per-face results of the plan `doc` on `part` with R (M, N)."""
+    selected = np.array([v.id for v in doc.viewpoints], dtype=np.int64)
+    results = face_results(counts, part.areas, part.counted, selected, doc.target.resolution_mm)
+    return pack(
+        result_arrays(results),
+        faces=part.n_faces,
+        views=selected.tolist(),
+        target_mm=doc.target.resolution_mm,
+        formulation=doc.target.formulation,
+        states=list(STATE_NAMES),
+    )
+
+
+def geometry_scene(part: Part) -> bytes:
+    """The packed geometry of `part` (vertices in mm, faces) with its id and bounds."""
+    return pack(geometry_arrays(part), mesh_id=part.id, bounds_mm=part.bounds.tolist())

@@ -10,7 +10,8 @@ from fastapi.routing import APIRoute
 from fastapi.staticfiles import StaticFiles
 from redis import Redis
 
-from service import problems
+from service import auth, problems
+from service.limits import JsonBodyLimit
 from service.routers import health, jobs, meshes, plans, studies, viewer
 from worker.queue import make_queue
 from worker.settings import Settings, get_settings
@@ -46,7 +47,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         generate_unique_id_function=_operation_id,
         lifespan=lifespan,
         max_body_size=settings.max_upload_bytes + MULTIPART_SLACK_BYTES,
+        dependencies=[auth.BEARER],  # OpenAPI only; ApiKeys enforces it
     )
+    app.add_middleware(JsonBodyLimit, max_bytes=settings.max_json_bytes)
+    app.add_middleware(auth.ApiKeys, keys=settings.api_key_list())  # outermost: before bodies
     conn = Redis.from_url(
         settings.redis_url,
         socket_connect_timeout=REDIS_TIMEOUT_S,

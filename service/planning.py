@@ -80,10 +80,10 @@ def get_mesh(store: Store, mesh_id: str) -> MeshSummary:
 
 def submit_plan(store: Store, queue: Queue, settings: Settings, body: PlanSubmit) -> str:
     """Check the request, store it and enqueue its job unless the plan exists; the plan id."""
+    check_request(body, settings.limits())  # LimitError, ViewpointError now, before any copy
     request = PlanRequest.model_validate(body.model_dump(exclude={"mesh_id"}))
     if not store.exists(art.mesh_key(body.mesh_id)):
         raise VppError(f"mesh_id {body.mesh_id}: no such mesh; upload it with POST /v1/meshes")
-    check_request(request, settings.limits())  # LimitError, ViewpointError now, not in the job
     plan = art.plan_id(body.mesh_id, request)
     if not store.exists(art.plan_key(plan)):
         art.put_request(store, plan, body.mesh_id, request)

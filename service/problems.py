@@ -1,8 +1,16 @@
-"""The one place where errors become RFC 9457 application/problem+json responses."""
+"""The one place where errors become RFC 9457 application/problem+json responses.
+
+`install` registers the handlers and makes the OpenAPI document say so: every error response
+is `application/problem+json` with the `Problem` schema (FastAPI would document
+`application/json`, and its own 422 shape), and every operation lists the errors any request
+can get: 401/403 (API keys), 413 (body cap), 503 (Redis or store down), 400 where it takes a
+body (unparseable JSON or multipart).
+"""
 
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from typing import Any
 
 from fastapi import FastAPI, Request
@@ -12,9 +20,11 @@ from redis.exceptions import RedisError
 from starlette.exceptions import HTTPException
 
 from vpp_core.errors import (
+    ForbiddenError,
     LimitError,
     NotFoundError,
     TooLargeError,
+    UnauthenticatedError,
     UnavailableError,
     VppError,
 )
@@ -22,6 +32,8 @@ from vpp_core.errors import (
 PROBLEM = "application/problem+json"
 STATUS: list[tuple[type[VppError], int]] = [
     (TooLargeError, 413),
+    (UnauthenticatedError, 401),
+    (ForbiddenError, 403),
     (NotFoundError, 404),
     (UnavailableError, 503),
     (LimitError, 422),
@@ -30,7 +42,13 @@ STATUS: list[tuple[type[VppError], int]] = [
 """HTTP status per error class, most specific first."""
 RETRY_AFTER_S = 5
 """Retry-After of 503 answers."""
-TITLES = {404: "Not found", 405: "Method not allowed", 413: "Payload too large"}
+TITLES = {
+    400: "Bad request",
+    404: "Not found",
+    405: "Method not allowed",
+    413: "Payload too large",
+    415: "Unsupported media type",
+}
 log = logging.getLogger("vpp.service")
 
 
@@ -41,13 +59,20 @@ def problem(
     body = {"type": "about:blank", "title": title, "status": status, "detail": detail}
     body["instance"] = request.url.path
     headers = {"Retry-After": str(RETRY_AFTER_S)} if status == 503 else None
+    if status == 401:
+        headers = {"WWW-Authenticate": 'Bearer realm="vpp"'}
     return JSONResponse({**body, **extra}, status_code=status, media_type=PROBLEM, headers=headers)
+
+
+def error_response(request: Request, exc: VppError) -> JSONResponse:
+    """The problem+json answer to a VppError (also what middleware sends, outside the handlers)."""
+    status = next(code for cls, code in STATUS if isinstance(exc, cls))
+    return problem(request, status, exc.title, exc.detail)
 
 
 async def _vpp_error(request: Request, exc: Exception) -> JSONResponse:
     assert isinstance(exc, VppError)
-    status = next(code for cls, code in STATUS if isinstance(exc, cls))
-    return problem(request, status, exc.title, exc.detail)
+    return error_response(request, exc)
 
 
 async def _validation(request: Request, exc: Exception) -> JSONResponse:
@@ -75,8 +100,53 @@ async def _internal(request: Request, exc: Exception) -> JSONResponse:
     return problem(request, 500, "Internal error", f"{type(exc).__name__}: see the server log")
 
 
+PROBLEM_SCHEMA = {"$ref": "#/components/schemas/Problem"}
+"""The schema of every error response in the OpenAPI document."""
+EVERY_OPERATION = {
+    "401": "No usable `Authorization: Bearer <key>` header (where API keys are set)",
+    "403": "The bearer token is not an API key of the service",
+    "413": "The request body exceeds its limit (VPP_MAX_JSON_BYTES, VPP_MAX_UPLOAD_BYTES)",
+    "503": "Redis or the store cannot be reached; retry after Retry-After seconds",
+}
+"""Errors any request can get, whatever the operation."""
+WITH_BODY = {"400": "The body cannot be parsed (JSON or multipart)"}
+"""Errors of operations that take a body."""
+VALIDATION_SCHEMAS = ("HTTPValidationError", "ValidationError")
+"""FastAPI's 422 schemas, replaced by Problem (its `errors` member)."""
+
+
+def document_problems(doc: dict[str, Any]) -> dict[str, Any]:
+    """Rewrite an OpenAPI document in place: error responses as problem+json (see module)."""
+    for path_item in doc.get("paths", {}).values():
+        for operation in path_item.values():
+            responses = operation.setdefault("responses", {})
+            extra = {**EVERY_OPERATION, **(WITH_BODY if "requestBody" in operation else {})}
+            for code, description in extra.items():
+                responses.setdefault(code, {"description": description})
+            for code, response in responses.items():
+                if code[0] in "45":
+                    response["content"] = {PROBLEM: {"schema": PROBLEM_SCHEMA}}
+    schemas = doc.get("components", {}).get("schemas", {})
+    for name in VALIDATION_SCHEMAS:
+        schemas.pop(name, None)
+    return doc
+
+
+def _problem_openapi(app: FastAPI) -> Callable[[], dict[str, Any]]:
+    """app.openapi with `document_problems` applied once to the cached document."""
+    build = app.openapi
+
+    def openapi() -> dict[str, Any]:
+        if app.openapi_schema is None:
+            app.openapi_schema = document_problems(build())
+        return app.openapi_schema
+
+    return openapi
+
+
 def install(app: FastAPI) -> None:
-    """Register the handlers on `app`."""
+    """Register the handlers on `app` and document them in its OpenAPI document."""
+    app.openapi = _problem_openapi(app)  # type: ignore[method-assign]
     app.add_exception_handler(VppError, _vpp_error)
     app.add_exception_handler(RequestValidationError, _validation)
     app.add_exception_handler(HTTPException, _http)

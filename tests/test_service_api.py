@@ -173,7 +173,7 @@ def test_committed_openapi_matches_the_app() -> None:
         "upload_mesh", "get_mesh", "submit_plan", "get_job", "cancel_job", "get_plan",
         "get_plan_plot", "submit_point_cloud", "get_point_cloud", "get_point_cloud_stats",
         "get_point_cloud_plot", "submit_study", "get_study", "get_study_csv",
-        "list_study_plots", "get_study_plot", "view_plan", "get_plan_scene",
+        "list_study_plots", "get_study_plot", "get_plan_scene",
         "get_mesh_geometry", "get_related_plans",
     }  # fmt: skip
 

@@ -14,6 +14,7 @@ import socket
 import threading
 import time
 from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import Any
 
 import numpy as np
@@ -65,24 +66,31 @@ def browser() -> Iterator[Any]:
         b.close()
 
 
-@pytest.fixture
-def live(api, start_workers) -> Iterator[tuple[Any, str]]:
-    """(TestClient, base URL): the same app served by uvicorn on loopback, one worker."""
+@contextmanager
+def serving(app: Any) -> Iterator[str]:
+    """The app served by uvicorn on a free loopback port; its base URL."""
     import uvicorn
 
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
-    server = uvicorn.Server(uvicorn.Config(api.app, host="127.0.0.1", port=port, log_level="error"))
+    server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="error"))
     thread = threading.Thread(target=server.run, daemon=True)
     thread.start()
     deadline = time.monotonic() + 10
     while not server.started and time.monotonic() < deadline:
         time.sleep(0.02)
-    start_workers(1)
-    yield api, f"http://127.0.0.1:{port}"
+    yield f"http://127.0.0.1:{port}"
     server.should_exit = True
     thread.join(10)
+
+
+@pytest.fixture
+def live(api, start_workers) -> Iterator[tuple[Any, str]]:
+    """(TestClient, base URL): the same app served by uvicorn on loopback, one worker."""
+    with serving(api.app) as url:
+        start_workers(1)
+        yield api, url
 
 
 class Page:
@@ -250,6 +258,35 @@ def test_the_page_of_a_running_plan_waits_for_it_and_an_unknown_one_says_so(live
         "window.vppViewer.failed"
     )
     assert page.page.locator("#status.error").is_visible()
+
+
+def test_with_api_keys_the_page_asks_for_one_and_sends_it(
+    svc_env, monkeypatch, start_workers, browser
+) -> None:
+    from fastapi.testclient import TestClient
+
+    from service.app import create_app
+    from worker.settings import Settings
+
+    key = "viewer-test-key-0123456789"
+    monkeypatch.setenv("VPP_API_KEYS", key)
+    with TestClient(create_app(Settings())) as client, serving(client.app) as url:
+        client.headers["Authorization"] = f"Bearer {key}"
+        start_workers(1)
+        _, plan, doc = planned(client)
+        page = browser.new_page(viewport=VIEWPORT)
+        page.goto(f"{url}/v1/plans/{plan}/view")  # the shell needs no key; its data does
+        page.wait_for_function("window.vppViewer.failed", timeout=10_000)
+        assert page.locator("#key-form").is_visible()
+        page.fill("#key", "not-the-key")
+        page.click("#key-form button")
+        page.wait_for_function("window.vppViewer.failed", timeout=10_000)
+        assert page.locator("#key-form").is_visible()  # refused (403): asked again
+        page.fill("#key", key)
+        page.click("#key-form button")
+        page.wait_for_function("window.vppViewer.ready", timeout=30_000)
+        assert page.evaluate("window.vppViewer.cameraCount()") == len(doc["viewpoints"])
+        assert page.locator("#key-form").is_hidden()
 
 
 def _ray_cast(part: Any, view: dict[str, Any], f: float, w: int, h: int) -> np.ndarray:

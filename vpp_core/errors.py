@@ -8,6 +8,9 @@ VppError                 anything the caller can fix by changing the input
 │   └── TooLargeError    an upload exceeds the byte limit
 ├── SolverError          the set cover cannot be solved (no coverable face, infeasible model)
 ├── NotFoundError        a referenced resource (mesh, plan, job, artifact) does not exist
+├── AuthError            the request is not authorised (the service's API keys)
+│   ├── UnauthenticatedError  no usable `Authorization: Bearer <key>` header
+│   └── ForbiddenError        a bearer key that is not one of the configured keys
 └── UnavailableError     a dependency (queue, store) cannot be reached; retry later
 """
 
@@ -70,3 +73,21 @@ class UnavailableError(VppError):
     """A dependency (queue, store) cannot be reached."""
 
     title = "Service unavailable"
+
+
+class AuthError(VppError):
+    """The request is not authorised."""
+
+    title = "Not authorised"
+
+
+class UnauthenticatedError(AuthError):
+    """No credentials, or credentials not in the `Authorization: Bearer <key>` form."""
+
+    title = "Authentication required"
+
+
+class ForbiddenError(AuthError):
+    """Credentials given, but not a configured API key."""
+
+    title = "Forbidden"

@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 from trimesh import Trimesh
 
 from vpp_core.errors import LimitError, MeshError
-from vpp_core.meshio import parse_mesh_bytes
+from vpp_core.meshio import announced_size, parse_mesh_bytes
 from vpp_core.orientation import orientation_signs
 
 UNITS_TO_MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0, "in": 25.4}
@@ -115,12 +115,24 @@ def load_mesh(
     scale = _unit_scale(units)
     if len(data) == 0:
         raise MeshError("empty file: 0 bytes")
+    _check_announced(*announced_size(data, fmt), max_faces)
     vertices, faces, notes = parse_mesh_bytes(data, fmt)
     if len(faces) == 0:
         raise MeshError(f"empty mesh: 0 triangles in {fmt.upper()} file")
     if len(faces) > max_faces:
         raise LimitError(f"mesh has {len(faces)} faces, the limit is {max_faces}")
     return _build_part(vertices, faces, scale, notes)
+
+
+def _check_announced(faces: int, vertices: int, max_faces: int) -> None:
+    """LimitError, before parsing, when the file's header or lines say it is over the limit."""
+    if faces > max_faces:
+        raise LimitError(f"mesh has {faces} faces (read before parsing), the limit is {max_faces}")
+    if vertices > 3 * max_faces:
+        raise LimitError(
+            f"mesh has {vertices} vertices (read before parsing), the limit is "
+            f"{3 * max_faces} (3 per face of the {max_faces}-face limit)"
+        )
 
 
 def part_from_arrays(

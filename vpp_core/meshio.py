@@ -35,6 +35,67 @@ def parse_mesh_bytes(data: bytes, fmt: str) -> tuple[F64, I64, list[str]]:
     return _parse_stl(data) if fmt == "stl" else _parse_trimesh(data, fmt)
 
 
+def announced_size(data: bytes, fmt: str) -> tuple[int, int]:
+    """Cheap lower bounds (faces, vertices) of what parsing `data` would give; 0 when unknown.
+
+    Read from headers (binary STL count, PLY `element`, OFF counts) or counted lines (ASCII STL
+    `endfacet`, OBJ `f`/`v`), in well under a second for any upload, so a mesh over the limits
+    is refused before trimesh spends seconds and gigabytes on it. Counted lines never exceed
+    what the parse returns; a header may announce more than its body holds (a lying header),
+    and such a file is refused as announced.
+    """
+    if fmt == "stl":
+        return _stl_announced(data), 0
+    if fmt == "obj":
+        return _line_count(data, b"f"), _line_count(data, b"v")
+    if fmt == "ply":
+        return _ply_element(data, b"face"), _ply_element(data, b"vertex")
+    if fmt == "off":
+        return _off_counts(data)
+    return 0, 0
+
+
+def _stl_announced(data: bytes) -> int:
+    """Triangles a binary STL's bytes hold (at most its header count), or ASCII `endfacet`s."""
+    n = len(data)
+    count = int(np.frombuffer(data, "<u4", 1, 80)[0]) if n >= _STL_HEADER_BYTES else 0
+    held = max(n - _STL_HEADER_BYTES, 0) // _STL_RECORD.itemsize
+    if n >= _STL_HEADER_BYTES and _STL_HEADER_BYTES + _STL_RECORD.itemsize * count == n:
+        return count
+    if _looks_like_ascii_stl(data):
+        return data.count(b"endfacet") + data.count(b"ENDFACET")
+    return min(count, held)
+
+
+def _line_count(data: bytes, keyword: bytes) -> int:
+    """Lines starting with `keyword` and a space or tab (an OBJ face or vertex)."""
+    head = data.startswith(keyword + b" ") or data.startswith(keyword + b"\t")
+    return int(head) + sum(data.count(b"\n" + keyword + sep) for sep in (b" ", b"\t"))
+
+
+_PLY_HEADER_BYTES = 1 << 16
+"""Where a PLY header must have ended."""
+
+
+def _ply_element(data: bytes, name: bytes) -> int:
+    """The count of PLY element `name` in the header (0 when absent or unreadable)."""
+    header = data[:_PLY_HEADER_BYTES].split(b"end_header", 1)[0]
+    found = re.search(rb"(?m)^[ \t]*element[ \t]+" + name + rb"[ \t]+(\d{1,19})\b", header)
+    return int(found.group(1)) if found else 0
+
+
+def _off_counts(data: bytes) -> tuple[int, int]:
+    """(faces, vertices) of an OFF header `OFF [nv nf ne]`, comments skipped; (0, 0) unreadable."""
+    text = data[:_PLY_HEADER_BYTES].decode("latin-1")
+    words = re.sub(r"#[^\n]*", " ", text).split()
+    if not words or not words[0].upper().endswith("OFF"):
+        return 0, 0
+    counts = words[1:3]
+    if len(counts) < 2 or not all(w.isdigit() for w in counts):
+        return 0, 0
+    return int(counts[1]), int(counts[0])
+
+
 # ---------------------------------------------------------------- STL
 
 

@@ -61,7 +61,7 @@ def make_viewpoints(
         raise ViewpointError(f"{len(positions)} positions but {len(gazes)} gazes")
     if not (np.isfinite(positions).all() and np.isfinite(gazes).all()):
         raise ViewpointError("viewpoint position or gaze is not finite")
-    norms = np.linalg.norm(gazes, axis=1)
+    gazes, norms = _norms(gazes)
     if (norms < 1e-12).any():
         raise ViewpointError(f"viewpoint {int(np.argmin(norms))}: gaze is the zero vector")
     gazes = gazes / norms[:, None]
@@ -84,12 +84,25 @@ def _given_ups(gazes: np.ndarray, ups: np.ndarray) -> np.ndarray:
     ups[missing] = _default_ups(gazes[missing])
     if not np.isfinite(ups).all():
         raise ViewpointError("viewpoint up vector is not finite")
-    norms = np.linalg.norm(ups, axis=1)
+    ups, norms = _norms(ups)
     cos = np.abs(np.einsum("ij,ij->i", ups, gazes)) / np.maximum(norms, 1e-300)
     bad = (norms < 1e-12) | (cos > PARALLEL_COS)
     if bad.any():
         raise ViewpointError(f"viewpoint {int(np.argmax(bad))}: up is zero or parallel to gaze")
     return _orthonormal(gazes, ups)
+
+
+def _norms(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(N, 3) finite rows and their (N,) norms; rows whose norm overflows (an up of 1e154: its
+    square is inf) are first divided by their largest |component|, keeping their direction."""
+    with np.errstate(over="ignore"):
+        norms = np.linalg.norm(v, axis=1)
+    huge = ~np.isfinite(norms)
+    if huge.any():
+        v = v.copy()
+        v[huge] /= np.abs(v[huge]).max(axis=1, keepdims=True)
+        norms = np.linalg.norm(v, axis=1)
+    return v, norms
 
 
 def _orthonormal(gazes: np.ndarray, ups: np.ndarray) -> np.ndarray:

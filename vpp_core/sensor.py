@@ -16,6 +16,12 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 from vpp_core.errors import SensorError
 
 
+def _midpoint(a: float, b: float) -> float:
+    """(a + b) / 2, also where a + b overflows (near_mm, far_mm close to the float range)."""
+    mid = (a + b) / 2
+    return mid if math.isfinite(mid) else a / 2 + b / 2
+
+
 class Sensor(BaseModel):
     """A pinhole camera; lengths in mm, angles in degrees; defaults are the paper's camera."""
 
@@ -40,13 +46,13 @@ class Sensor(BaseModel):
         if wd is not None and not self.near_mm <= wd <= self.far_mm:
             raise ValueError(f"working_distance_mm ({wd}) must lie in [near_mm, far_mm]")
         if wd is None:
-            object.__setattr__(self, "working_distance_mm", (self.near_mm + self.far_mm) / 2)
+            object.__setattr__(self, "working_distance_mm", _midpoint(self.near_mm, self.far_mm))
         return self
 
     @property
     def working_distance(self) -> float:
         """Working distance in mm (filled in by validation)."""
-        return float(self.working_distance_mm or (self.near_mm + self.far_mm) / 2)
+        return float(self.working_distance_mm or _midpoint(self.near_mm, self.far_mm))
 
     @property
     def fx(self) -> float:

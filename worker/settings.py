@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from functools import lru_cache
 
-from pydantic import Field
+from pydantic import Field, SecretStr, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from vpp_core.plan import Limits
@@ -13,7 +13,7 @@ from vpp_core.plan import Limits
 class Settings(BaseSettings):
     """Limits, resources, queue and store; each field is set by VPP_<NAME> in the environment."""
 
-    model_config = SettingsConfigDict(env_prefix="VPP_", frozen=True)
+    model_config = SettingsConfigDict(env_prefix="VPP_", frozen=True, hide_input_in_errors=True)
 
     max_upload_bytes: int = Field(256 * 2**20, gt=0)
     """Largest mesh file accepted (bytes); bigger uploads get 413."""
@@ -25,6 +25,17 @@ class Settings(BaseSettings):
     """Most rays (candidates × pixels) in one plan."""
     max_cloud_points: int = Field(50_000_000, gt=0)
     """Most points of a simulated point cloud (about 16 bytes each in memory and in the PLY)."""
+    max_json_bytes: int = Field(2 * 2**20, gt=0)
+    """Largest request body that is not a multipart mesh upload (JSON plan and study requests);
+    bigger bodies get 413 before they are read or parsed. 2 MiB holds `max_candidates` explicit
+    viewpoints with room to spare (about 250 bytes each at full float precision, `up` included),
+    and the most viewpoints it can hold (about 50,000 minimal ones) are refused in about half a
+    second; raise it with `max_candidates`."""
+    api_keys: SecretStr = SecretStr("")
+    """API keys (bearer tokens), comma-separated: `VPP_API_KEYS=key1,key2`. Empty (the default):
+    the API is open. Set: every request but /livez, /readyz, /openapi.json, the docs and the
+    viewer shell needs `Authorization: Bearer <one of them>`. Each key is printable ASCII
+    without spaces or commas; several let keys be rotated without downtime. Never logged."""
     threads: int | None = Field(None, gt=0)
     """Threads for ray tracing and the solver per process; None = all cores it may use."""
 
@@ -51,9 +62,27 @@ class Settings(BaseSettings):
     retry_after_s: int = Field(2, ge=1)
     """Retry-After sent while a job is queued or running, and with 503."""
 
+    @field_validator("api_keys")
+    @classmethod
+    def _check_keys(cls, value: SecretStr) -> SecretStr:
+        """Every key printable ASCII (what an HTTP header carries), none with a space."""
+        for key in _split_keys(value.get_secret_value()):
+            if not key.isascii() or not key.isprintable() or " " in key:
+                raise ValueError("API keys must be printable ASCII without spaces (key not shown)")
+        return value
+
+    def api_key_list(self) -> list[str]:
+        """The configured API keys (none: the API is open)."""
+        return _split_keys(self.api_keys.get_secret_value())
+
     def limits(self) -> Limits:
         """The core's view of the limits."""
         return Limits(max_candidates=self.max_candidates, max_rays=self.max_rays)
+
+
+def _split_keys(value: str) -> list[str]:
+    """`"k1, k2,,"` -> ["k1", "k2"]: comma-separated, blanks around and empty entries dropped."""
+    return [k.strip() for k in value.split(",") if k.strip()]
 
 
 @lru_cache

@@ -24,13 +24,12 @@ BINARY: dict[int | str, dict[str, Any]] = {
 }
 
 
-@router.get(
-    "/v1/plans/{plan_id}/view",
-    response_class=HTMLResponse,
-    responses={200: {"content": {"text/html": {}}}, 404: {"model": Problem}},
-)
+@router.get("/v1/plans/{plan_id}/view", response_class=HTMLResponse, include_in_schema=False)
 def view_plan(plan_id: str) -> HTMLResponse:
-    """A 3D view of the plan in the browser (it waits for the plan's job while it runs)."""
+    """A 3D view of the plan in the browser (it waits for the plan's job while it runs).
+
+    Not in the OpenAPI document: a page for people, open without an API key (it holds no data).
+    """
     planning.content_id(plan_id, "plan")
     return HTMLResponse(
         (STATIC_DIR / "index.html").read_text(), headers={"Cache-Control": "no-cache"}

@@ -207,6 +207,7 @@ function wire() {
 
 async function run(plan) {
   state.plan = plan;
+  api.failed = null;
   try {
     await load(plan);
   } catch (e) {

@@ -94,14 +94,18 @@ class RawClient:
         ] * clients
 
     async def request(self, k: int, method: str, path: str, **kw: Any) -> tuple[int, str, bytes]:
-        """(status, content type, body) of one request on connection k."""
+        """(status, content type, body) of one request on connection k; `json=` or `content=`
+        bytes (with their Content-Type in `headers=`) as the body."""
         if self.conns[k] is None:
             self.conns[k] = await asyncio.open_connection(self.host, self.port)
         reader, writer = self.conns[k]  # type: ignore[misc]
-        body = json.dumps(kw["json"]).encode() if "json" in kw else b""
+        body = json.dumps(kw["json"]).encode() if "json" in kw else kw.get("content", b"")
         head = f"{method} {path} HTTP/1.1\r\nHost: {self.host}:{self.port}\r\n"
         if "json" in kw:
-            head += f"Content-Type: application/json\r\nContent-Length: {len(body)}\r\n"
+            head += "Content-Type: application/json\r\n"
+        if body or method in ("POST", "PUT", "PATCH"):
+            head += f"Content-Length: {len(body)}\r\n"
+        head += "".join(f"{name}: {value}\r\n" for name, value in kw.get("headers", {}).items())
         writer.write(head.encode() + b"\r\n" + body)
         status = int((await reader.readline()).split()[1])
         headers = {}

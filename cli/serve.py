@@ -13,7 +13,7 @@ import uvicorn
 from service.app import create_app
 from vpp_core.errors import VppError
 from worker.embedded import EmbeddedRedis
-from worker.pool import start_workers, stop_workers
+from worker.pool import WorkerPool
 from worker.settings import get_settings
 
 
@@ -25,8 +25,9 @@ def run_serve(args: argparse.Namespace) -> int:
         if not url:
             redis = stack.enter_context(EmbeddedRedis())
             count = args.workers or settings.workers
-            procs = start_workers(redis.url, count, settings.threads)
-            stack.callback(stop_workers, procs)
+            pool = WorkerPool(redis.url, count, settings.threads)
+            pool.watch()  # a worker killed (OOM) is started again
+            stack.callback(pool.stop)
             url, note = redis.url, f"embedded Redis, {count} local workers"
         app = create_app(settings.model_copy(update={"redis_url": url}))
         print(
@@ -45,21 +46,22 @@ def _exit(signum: int, frame: FrameType | None) -> None:
 
 
 def run_workers(args: argparse.Namespace) -> int:
-    """Worker processes on a shared Redis until SIGTERM/SIGINT (or until idle with --burst)."""
+    """Worker processes on a shared Redis, kept running, until SIGTERM/SIGINT (or until idle
+    with --burst)."""
     settings = get_settings()
     url = args.url or settings.redis_url
     if not url:
         raise VppError("no Redis to work for: set VPP_REDIS_URL or pass --url")
-    procs = start_workers(url, args.workers or settings.workers, settings.threads, args.burst)
+    pool = WorkerPool(url, args.workers or settings.workers, settings.threads, args.burst)
 
     def stop(signum: int, frame: FrameType | None) -> None:
-        stop_workers(procs)
+        pool.stop()
         sys.exit(0)
 
     signal.signal(signal.SIGTERM, stop)
     try:
-        codes = [p.wait() for p in procs]
+        pool.wait()  # a worker killed (OOM) or failing is started again; --burst: until done
     except KeyboardInterrupt:
-        stop_workers(procs)
+        pool.stop()
         return 130
-    return max(codes, default=0)
+    return 0

@@ -10,7 +10,7 @@ from fastapi.routing import APIRoute
 from fastapi.staticfiles import StaticFiles
 from redis import Redis
 
-from service import auth, problems
+from service import auth, idempotency, problems
 from service.limits import JsonBodyLimit
 from service.routers import health, jobs, meshes, plans, studies, viewer
 from worker.queue import make_queue
@@ -49,18 +49,25 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         max_body_size=settings.max_upload_bytes + MULTIPART_SLACK_BYTES,
         dependencies=[auth.BEARER],  # OpenAPI only; ApiKeys enforces it
     )
-    app.add_middleware(JsonBodyLimit, max_bytes=settings.max_json_bytes)
-    app.add_middleware(auth.ApiKeys, keys=settings.api_key_list())  # outermost: before bodies
     conn = Redis.from_url(
         settings.redis_url,
         socket_connect_timeout=REDIS_TIMEOUT_S,
         socket_timeout=REDIS_TIMEOUT_S,
     )
+    app.add_middleware(  # innermost: only requests the keys and the body cap let through
+        idempotency.Idempotency,
+        conn=conn,
+        ttl_s=settings.idempotency_ttl_s,
+        lock_s=settings.idempotency_lock_s,
+    )
+    app.add_middleware(JsonBodyLimit, max_bytes=settings.max_json_bytes)
+    app.add_middleware(auth.ApiKeys, keys=settings.api_key_list())  # outermost: before bodies
     app.state.settings = settings
     app.state.redis = conn
     app.state.queue = make_queue(conn, settings)
     app.state.store = open_store(settings.store_url)
     problems.install(app)
+    idempotency.install_document(app)
     for router in (meshes.router, plans.router, studies.router, jobs.router, health.router):
         app.include_router(router)
     app.include_router(viewer.router)

@@ -78,6 +78,17 @@ def get_mesh(store: Store, mesh_id: str) -> MeshSummary:
     return MeshSummary.model_validate_json(store.get(art.summary_key(content_id(mesh_id, "mesh"))))
 
 
+def needs_job(conn: Redis, store: Store, job_id: str) -> bool:
+    """False when job `job_id` is done (its result stored), queued or running: the request joins
+    it and writes nothing. `jobs.state` reads the RQ record before the store, and a job stores
+    its result before RQ marks it finished, so a job that ends meanwhile is seen done; reading
+    the store first let a request that saw no result, then a finished job, enqueue it again."""
+    try:
+        return jobs.state(conn, store, job_id).status not in ("queued", "running", "succeeded")
+    except NotFoundError:
+        return True
+
+
 def submit_plan(store: Store, queue: Queue, settings: Settings, body: PlanSubmit) -> str:
     """Check the request, store it and enqueue its job unless the plan exists; the plan id."""
     check_request(body, settings.limits())  # LimitError, ViewpointError now, before any copy
@@ -85,9 +96,10 @@ def submit_plan(store: Store, queue: Queue, settings: Settings, body: PlanSubmit
     if not store.exists(art.mesh_key(body.mesh_id)):
         raise VppError(f"mesh_id {body.mesh_id}: no such mesh; upload it with POST /v1/meshes")
     plan = art.plan_id(body.mesh_id, request)
-    if not store.exists(art.plan_key(plan)):
-        art.put_request(store, plan, body.mesh_id, request)
-        jobs.submit(queue, settings, plan)
+    if needs_job(queue.connection, store, plan):
+        if not store.exists(art.request_key(plan)):
+            art.put_request(store, plan, body.mesh_id, request)
+        jobs.submit(queue, settings, store, plan)
     return plan
 
 
@@ -99,9 +111,10 @@ def submit_study(store: Store, queue: Queue, settings: Settings, body: StudySubm
     values = body.resolutions if body.kind == "resolution" else body.ratios
     check_study(body.kind, values, request, settings.limits())
     study = art.study_id(body.mesh_id, request, body.kind, values)
-    if not store.exists(art.study_key(study)):
-        art.put_study_request(store, study, body.mesh_id, request, body.kind, values)
-        jobs.submit(queue, settings, study, study_job)
+    if needs_job(queue.connection, store, study):
+        if not store.exists(art.request_key(study)):
+            art.put_study_request(store, study, body.mesh_id, request, body.kind, values)
+        jobs.submit(queue, settings, store, study, study_job)
     return study
 
 
@@ -110,9 +123,10 @@ def submit_cloud(store: Store, queue: Queue, settings: Settings, plan: str) -> s
     if not store.exists(art.plan_key(content_id(plan, "plan"))):
         raise NotFoundError(f"no finished plan {plan!r}: its point cloud needs the plan first")
     cloud = art.cloud_id(plan)
-    if not store.exists(art.cloud_key(cloud)):
-        art.put_cloud_request(store, cloud, plan)
-        jobs.submit(queue, settings, cloud, cloud_job)
+    if needs_job(queue.connection, store, cloud):
+        if not store.exists(art.request_key(cloud)):
+            art.put_cloud_request(store, cloud, plan)
+        jobs.submit(queue, settings, store, cloud, cloud_job)
     return cloud
 
 

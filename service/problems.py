@@ -41,7 +41,7 @@ STATUS: list[tuple[type[VppError], int]] = [
 ]
 """HTTP status per error class, most specific first."""
 RETRY_AFTER_S = 5
-"""Retry-After of 503 answers."""
+"""Retry-After of 503 answers outside an app with settings (else VPP_RETRY_AFTER_S)."""
 TITLES = {
     400: "Bad request",
     404: "Not found",
@@ -58,7 +58,7 @@ def problem(
     """A problem+json response."""
     body = {"type": "about:blank", "title": title, "status": status, "detail": detail}
     body["instance"] = request.url.path
-    headers = {"Retry-After": str(RETRY_AFTER_S)} if status == 503 else None
+    headers = {"Retry-After": str(_retry_after_s(request))} if status == 503 else None
     if status == 401:
         headers = {"WWW-Authenticate": 'Bearer realm="vpp"'}
     return JSONResponse({**body, **extra}, status_code=status, media_type=PROBLEM, headers=headers)
@@ -68,6 +68,12 @@ def error_response(request: Request, exc: VppError) -> JSONResponse:
     """The problem+json answer to a VppError (also what middleware sends, outside the handlers)."""
     status = next(code for cls, code in STATUS if isinstance(exc, cls))
     return problem(request, status, exc.title, exc.detail)
+
+
+def _retry_after_s(request: Request) -> int:
+    """The app's VPP_RETRY_AFTER_S, the same as job polls send; RETRY_AFTER_S without one."""
+    settings = getattr(request.app.state, "settings", None) if "app" in request.scope else None
+    return int(getattr(settings, "retry_after_s", RETRY_AFTER_S))
 
 
 async def _vpp_error(request: Request, exc: Exception) -> JSONResponse:

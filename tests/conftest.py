@@ -175,3 +175,33 @@ def s3_endpoint(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
     with seaweed_s3(tmp_path_factory.mktemp("seaweed")) as endpoint:
         create_bucket(endpoint, S3_BUCKET)
         yield endpoint
+
+
+@pytest.fixture
+def live_api(svc_env: dict[str, str]) -> Iterator[str]:
+    """The app (VPP_* of `svc_env`) served by uvicorn in a thread on loopback; its base URL."""
+    import socket
+    import threading
+    import time
+
+    import uvicorn
+
+    from service.app import create_app
+    from worker.settings import Settings
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    config = uvicorn.Config(
+        create_app(Settings()), host="127.0.0.1", port=port, log_level="warning", workers=1
+    )
+    server = uvicorn.Server(config)
+    thread = threading.Thread(target=server.run, daemon=True)
+    thread.start()
+    deadline = time.monotonic() + 30
+    while not server.started:
+        assert thread.is_alive() and time.monotonic() < deadline, "uvicorn did not start"
+        time.sleep(0.02)
+    yield f"http://127.0.0.1:{port}"
+    server.should_exit = True
+    thread.join(10)

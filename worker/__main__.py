@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 import argparse
+import itertools
 import logging
 import os
+import time
+from types import FrameType
 
 # Before numpy loads: one BLAS thread per process (a spinning helper thread slows forked horses).
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
@@ -15,14 +18,52 @@ import highspy  # noqa: E402,F401
 import numpy  # noqa: E402,F401
 import scipy.sparse  # noqa: E402,F401
 import trimesh  # noqa: E402,F401
+from redis import Redis  # noqa: E402
+from redis.exceptions import ConnectionError, TimeoutError  # noqa: E402
 from rq import Queue, Worker  # noqa: E402
+from rq.job import Job  # noqa: E402
 
 import worker.jobs  # noqa: E402,F401
 from worker.jobs import connect  # noqa: E402
-from worker.settings import get_settings  # noqa: E402
+from worker.settings import Settings, get_settings  # noqa: E402
 
-MAINTENANCE_S = 60
-"""How often a worker sweeps for jobs of dead workers (RQ's default is 10 min)."""
+RECONNECT_S = 1.0
+"""Seconds between two pings of a Redis that went away, before the worker starts again."""
+DEQUEUE_SLACK_S = 15
+"""RQ blocks on an empty queue for worker_ttl - 15 s before it sweeps again."""
+log = logging.getLogger("vpp.worker")
+
+
+class VppWorker(Worker):
+    """RQ's forking worker with a heartbeat of a third of `dead_worker_s`: a job whose worker died
+    is seen as abandoned after `dead_worker_s`, not RQ's 90 s (`job_monitoring_interval` + 60)."""
+
+    dead_worker_s = 30
+    stopping = False
+    """Whether a stop was asked for (SIGTERM, SIGINT): then an end of `work` is no error."""
+
+    def request_stop(self, signum: int, frame: FrameType | None) -> None:
+        self.stopping = True
+        super().request_stop(signum, frame)  # type: ignore[no-untyped-call]
+
+    def get_heartbeat_ttl(self, job: Job, working_time: float = 0.0) -> int:
+        if job.timeout and job.timeout > 0 and working_time >= job.timeout:
+            return super().get_heartbeat_ttl(job, working_time)  # RQ kills it at timeout + 60
+        return self.dead_worker_s
+
+
+def make_worker(conn: Redis, settings: Settings, name: str | None) -> VppWorker:
+    """One worker on the plan queue, beating and sweeping as the settings say."""
+    worker = VppWorker(
+        [Queue(settings.queue, connection=conn)],
+        connection=conn,
+        name=name,
+        maintenance_interval=settings.sweep_s,
+        job_monitoring_interval=max(1, settings.dead_worker_s // 3),
+        worker_ttl=settings.sweep_s + DEQUEUE_SLACK_S,  # an idle worker wakes every sweep_s
+    )
+    worker.dead_worker_s = settings.dead_worker_s
+    return worker
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -38,10 +79,29 @@ def main(argv: list[str] | None = None) -> None:
         parser.error("no Redis: pass --url or set VPP_REDIS_URL")
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
     conn = connect(url)
-    queue = Queue(settings.queue, connection=conn)
-    Worker([queue], connection=conn, name=args.name, maintenance_interval=MAINTENANCE_S).work(
-        burst=args.burst, with_scheduler=False
-    )
+    for attempt in itertools.count():
+        # a worker that lost Redis quits (RQ); start another (new name: the old one may still be
+        # registered) once Redis answers again, until stopped on request or done (--burst)
+        name = args.name and (f"{args.name}.{attempt}" if attempt else args.name)
+        worker = make_worker(conn, settings, name)
+        try:
+            worker.work(burst=args.burst, with_scheduler=False)
+            if args.burst or worker.stopping:
+                return
+            log.warning("worker %s stopped on an error; starting again", worker.name)
+        except (ConnectionError, TimeoutError) as exc:
+            log.warning("worker %s lost Redis (%s); starting again when it answers", name, exc)
+        wait_for_redis(conn)
+
+
+def wait_for_redis(conn: Redis) -> None:
+    """Return once Redis answers a PING."""
+    while True:
+        try:
+            conn.ping()
+            return
+        except (ConnectionError, TimeoutError):
+            time.sleep(RECONNECT_S)
 
 
 if __name__ == "__main__":

@@ -4,8 +4,13 @@
 candidates are cut into chunks, each enqueued as a `chunk_job` that any worker can take;
 the plan job takes back (LREM, atomic against the workers' LMOVE) and traces itself every
 chunk no other worker has started, so one worker alone finishes too, and it waits for the
-rest. A failed chunk fails the plan with its reason. Finished chunks stay in the store, so
-a cancelled or crashed plan resumes where it stopped; R is traced once per trace id.
+rest. Finished chunks stay in the store, so a cancelled or crashed plan resumes where it
+stopped; R is traced once per trace id.
+
+Faults (see worker.faults): a job whose worker died is put back on the queue up to
+`job_retries` times; a job that raises fails at once. A failed chunk fails the plan with its
+reason; a chunk put back is traced again by any worker or taken back; a retried plan job
+adopts the chunk jobs of its previous attempt.
 """
 
 from __future__ import annotations
@@ -17,7 +22,7 @@ from typing import Any
 
 import numpy as np
 from redis import Redis
-from rq import Queue, get_current_job
+from rq import Queue, Retry, get_current_job
 from rq.job import Job, JobStatus
 
 from vpp_core.document import PlanRequest, Timings
@@ -31,6 +36,7 @@ from vpp_core.raytrace import Trace, join_traces, make_backend, trace_counts
 from vpp_core.scene import plan_scene
 from vpp_core.sensor import Sensor
 from worker import artifacts as art
+from worker.faults import delete_job, fail_fast, failure_reason
 from worker.settings import Settings, get_settings
 from worker.store import Store, open_store
 from worker.tracelock import TraceLock
@@ -39,9 +45,9 @@ META_INTERVAL_S = 0.5
 """Least seconds between two progress writes of one job (Redis round trips)."""
 POLL_S = 0.25
 """Seconds between two looks at the chunks other workers run."""
-CLEANUP_S = 15.0
-"""Seconds between two sweeps for chunks whose worker died (abandoned jobs)."""
 FAILED = {JobStatus.FAILED, JobStatus.STOPPED, JobStatus.CANCELED}
+ADOPT = {JobStatus.QUEUED, JobStatus.STARTED, JobStatus.FINISHED}
+"""Chunk job states a retried plan job adopts instead of enqueueing the chunk again."""
 
 
 class _Meta:
@@ -90,6 +96,7 @@ def run_job(body: Callable[[Context, str], dict[str, Any]], job_id: str) -> dict
     try:
         return body(ctx, job_id)
     except BaseException as exc:
+        fail_fast(ctx.job, exc)
         ctx.meta.update(force=True, error=error_record(exc))
         raise
 
@@ -176,7 +183,7 @@ def _fan_out(
     """R of all views: chunks enqueued for any worker, the ones still queued traced here."""
     start = time.perf_counter()
     size = ctx.settings.chunk_views
-    chunks = _Chunks(ctx, part.id, trace_id, len(views), size)
+    chunks = _Chunks(ctx, part.id, trace_id, len(views), size, backend.name)
     own: dict[int, Trace] = {}  # traced here: kept, not read back from the store
     while not chunks.all_done():
         index = chunks.take_back()
@@ -216,9 +223,22 @@ def _trace_range(
     return trace_counts(part, sensor, subset, backend=backend, threads=threads, progress=progress)
 
 
-def chunk_job(mesh_id: str, trace_id: str, size: int, index: int) -> dict[str, Any]:
-    """Trace chunk `index` (views [index·size, (index+1)·size)) of `trace_id` into the store."""
+def chunk_job(
+    mesh_id: str, trace_id: str, size: int, index: int, backend: str | None = None
+) -> dict[str, Any]:
+    """Trace chunk `index` (views [index·size, (index+1)·size)) of `trace_id` into the store,
+    with the ray backend the plan asked for (its part of the trace id)."""
     ctx = Context.current()
+    try:
+        return _chunk(ctx, mesh_id, trace_id, size, index, backend)
+    except BaseException as exc:
+        fail_fast(ctx.job, exc)
+        raise
+
+
+def _chunk(
+    ctx: Context, mesh_id: str, trace_id: str, size: int, index: int, backend: str | None
+) -> dict[str, Any]:
     key = art.chunk_key(trace_id, size, index)
     if ctx.store.exists(key):
         return {"chunk": index, "cached": True}
@@ -231,7 +251,8 @@ def chunk_job(mesh_id: str, trace_id: str, size: int, index: int) -> dict[str, A
         done[0] += n
         ctx.meta.update(done=done[0])
 
-    trace = _trace_range(ctx, part, sensor, views, lo, hi, None, progress)
+    tracer = make_backend(part, backend)
+    trace = _trace_range(ctx, part, sensor, views, lo, hi, tracer, progress)
     ctx.store.put(key, art.trace_bytes(trace))
     ctx.meta.update(force=True, done=hi - lo)
     return {"chunk": index, "views": hi - lo, "rays_cast": trace.rays_cast}
@@ -249,8 +270,10 @@ def stage_progress(meta: _Meta) -> Any:
 class _Chunks:
     """The chunk jobs of one fan-out and what the plan job knows of them."""
 
-    def __init__(self, ctx: Context, mesh_id: str, trace_id: str, n_views: int, size: int) -> None:
-        self.ctx, self.mesh_id, self.trace_id = ctx, mesh_id, trace_id
+    def __init__(
+        self, ctx: Context, mesh_id: str, trace_id: str, n_views: int, size: int, backend: str
+    ) -> None:
+        self.ctx, self.mesh_id, self.trace_id, self.backend = ctx, mesh_id, trace_id, backend
         self.n_views, self.size = n_views, size
         self.n = -(-n_views // size)
         self.worker = ctx.job.worker_name or "?"
@@ -261,28 +284,41 @@ class _Chunks:
         self.last_cleanup = time.monotonic()
         self._enqueue()
 
+    def _adoptable(self) -> dict[int, str]:
+        """Chunk jobs of this plan job's previous attempt still queued, running or done."""
+        old = self.ctx.job.meta.get("chunks", [])
+        old = [r for r in old if r.get("job") and not r.get("taken_back") and r["index"] < self.n]
+        jobs = Job.fetch_many([r["job"] for r in old], connection=self.ctx.job.connection)
+        alive = {job.id for job in jobs if job is not None and job.get_status(False) in ADOPT}
+        return {r["index"]: r["job"] for r in old if r["job"] in alive}
+
     def _enqueue(self) -> None:
-        """Enqueue a job for every chunk not in the store yet."""
+        """Enqueue a job for every chunk not in the store yet (or adopt the previous attempt's)."""
         ctx, s = self.ctx, self.ctx.settings
         stored = [
             ctx.store.exists(art.chunk_key(self.trace_id, self.size, i)) for i in range(self.n)
         ]
+        adopted = self._adoptable()
         token = f"{int(time.time() * 1000):x}"
         calls = []
         for i, rec in enumerate(self.records):
             if stored[i]:
                 rec.update(status="succeeded", worker="store")
                 continue
+            if i in adopted:
+                rec["job"] = adopted[i]
+                continue
             rec["job"] = f"{ctx.job.id}-{token}-c{i:05d}"
             calls.append(
                 Queue.prepare_data(
                     chunk_job,
-                    (self.mesh_id, self.trace_id, self.size, i),
+                    (self.mesh_id, self.trace_id, self.size, i, self.backend),
                     job_id=rec["job"],
                     timeout=s.chunk_timeout_s,
                     result_ttl=s.result_ttl_s,
                     failure_ttl=s.failure_ttl_s,
                     description=f"trace chunk {i} of plan {ctx.job.id[:12]}",
+                    retry=Retry(max=s.job_retries) if s.job_retries else None,
                 )
             )
         if calls:
@@ -305,9 +341,7 @@ class _Chunks:
 
     def taken_done(self, index: int) -> None:
         self.records[index].update(status="succeeded", done=self.records[index]["views"])
-        Job(self.records[index]["job"], connection=self.ctx.job.connection).delete(
-            remove_from_queue=False
-        )
+        delete_job(Job(self.records[index]["job"], connection=self.ctx.job.connection), False)
         self.watch()
 
     def watch(self) -> None:
@@ -328,14 +362,19 @@ class _Chunks:
             raise VppError(f"ray-tracing chunk {rec['index']} failed: {failure_reason(job)}")
         rec["worker"] = job.worker_name or rec.get("worker")
         rec["done"] = int(job.meta.get("done", 0))
+        retries = self.ctx.settings.job_retries - (job.retries_left or 0)
+        if job.retries_left is not None and retries:
+            rec["retries"] = retries  # its worker died under it that many times
         if status == JobStatus.FINISHED:
             rec.update(status="succeeded", done=rec["views"])
         elif status == JobStatus.STARTED:
             rec["status"] = "running"
+        elif status == JobStatus.QUEUED:  # put back after its worker died: may be taken back
+            rec.update(status="queued", done=0)
 
     def _cleanup(self) -> None:
-        """Move chunks of dead workers to failed (RQ's own sweep runs only every 10 min)."""
-        if time.monotonic() - self.last_cleanup > CLEANUP_S:
+        """Retry or fail chunks of dead workers (their heartbeat expired) every `sweep_s`."""
+        if time.monotonic() - self.last_cleanup > self.ctx.settings.sweep_s:
             self.ctx.queue.started_job_registry.cleanup()
             self.last_cleanup = time.monotonic()
 
@@ -347,14 +386,6 @@ class _Chunks:
         self.ctx.meta.update(
             force=force, stage="trace", done=done, total=self.n_views, chunks=self.records
         )
-
-
-def failure_reason(job: Job) -> str:
-    """The last line of a failed job's exception, or its status."""
-    result = job.latest_result()
-    text = (result.exc_string or "") if result else ""
-    lines = [line for line in text.strip().splitlines() if line.strip()]
-    return lines[-1] if lines else str(job.get_status(refresh=False))
 
 
 def connect(url: str) -> Redis:

@@ -1,4 +1,5 @@
-"""Local worker processes: `python -m worker` subprocesses, started and stopped together."""
+"""Local worker processes: `python -m worker` subprocesses, started and stopped together, and
+kept running (`WorkerPool`): one killed (SIGKILL, the OOM killer) is started again."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 from collections.abc import Mapping
 from typing import IO
 
@@ -16,6 +18,8 @@ PR_SET_PDEATHSIG = 1
 """prctl option: the signal a child gets when its parent dies."""
 STOP_WAIT_S = 10.0
 """Seconds a worker gets to finish its warm shutdown before it is killed."""
+CHECK_S = 1.0
+"""Seconds between two looks of a WorkerPool at its processes (a dead one is replaced then)."""
 
 
 def worker_env(workers: int, threads: int | None, extra: Mapping[str, str] = {}) -> dict[str, str]:
@@ -38,28 +42,80 @@ def start_workers(
 ) -> list[subprocess.Popen[bytes]]:
     """Start `count` worker processes on the queue at `url`; their output to `log` if given."""
     env = worker_env(count, threads)
-    procs = []
-    for i in range(count):
-        cmd = [
-            sys.executable,
-            "-m",
-            "worker",
-            "--url",
-            url,
-            "--name",
-            f"{prefix}-{os.getpid()}-{i}",
-        ]
-        args = cmd + (["--burst"] if burst else [])
-        procs.append(
-            subprocess.Popen(
-                args,
-                env=env,
-                stdout=log,
-                stderr=log and subprocess.STDOUT,
-                preexec_fn=die_with_parent,
-            )
+    return [start_worker(url, f"{prefix}-{os.getpid()}-{i}", env, burst, log) for i in range(count)]
+
+
+def start_worker(
+    url: str, name: str, env: Mapping[str, str], burst: bool = False, log: IO[bytes] | None = None
+) -> subprocess.Popen[bytes]:
+    """One `python -m worker` process called `name`."""
+    cmd = [sys.executable, "-m", "worker", "--url", url, "--name", name]
+    return subprocess.Popen(
+        cmd + (["--burst"] if burst else []),
+        env=env,
+        stdout=log,
+        stderr=log and subprocess.STDOUT,
+        preexec_fn=die_with_parent,
+    )
+
+
+class WorkerPool:
+    """`count` worker processes kept running: one that is killed or exits with an error is
+    started again (under a new name) at the next `check`; one that exits 0 (--burst done, or
+    stopped) is not. `watch()` checks every CHECK_S in a thread; `stop()` stops them all."""
+
+    def __init__(
+        self,
+        url: str,
+        count: int,
+        threads: int | None = None,
+        burst: bool = False,
+        prefix: str = "vpp",
+        log: IO[bytes] | None = None,
+    ) -> None:
+        self.url, self.burst, self.log = url, burst, log
+        self.env = worker_env(count, threads)
+        self.prefix = f"{prefix}-{os.getpid()}"
+        self.lock = threading.Lock()
+        self.stopping = threading.Event()
+        self.procs = [self._start() for _ in range(count)]
+        self.restarts = 0
+
+    def _start(self) -> subprocess.Popen[bytes]:
+        return start_worker(
+            self.url, f"{self.prefix}-{next(_serial)}", self.env, self.burst, self.log
         )
-    return procs
+
+    def check(self) -> bool:
+        """Replace the workers that died; whether any worker runs."""
+        with self.lock:
+            for i, proc in enumerate(self.procs):
+                if proc.poll() not in (None, 0) and not self.stopping.is_set():
+                    print(
+                        f"vpp: worker {proc.pid} died ({proc.returncode}); starting another",
+                        file=sys.stderr,
+                    )
+                    self.procs[i] = self._start()
+                    self.restarts += 1
+            return any(p.poll() is None for p in self.procs)
+
+    def wait(self) -> None:
+        """Keep the workers running until all have exited 0 (or `stop`)."""
+        while self.check() and not self.stopping.wait(CHECK_S):
+            pass
+
+    def watch(self) -> threading.Thread:
+        """`wait` in a daemon thread (beside a server). The workers it starts again get SIGTERM
+        when this thread ends (PR_SET_PDEATHSIG follows the thread): after `stop`, as meant."""
+        thread = threading.Thread(target=self.wait, name="vpp-worker-pool", daemon=True)
+        thread.start()
+        return thread
+
+    def stop(self, wait_s: float = STOP_WAIT_S) -> None:
+        """Stop every worker (see `stop_workers`); none is started again."""
+        self.stopping.set()
+        with self.lock:
+            stop_workers(self.procs, wait_s)
 
 
 def die_with_parent() -> None:

@@ -3,6 +3,12 @@
 RQ's eleven job statuses map to five (queued, running, succeeded, failed, canceled); a plan
 whose document is in the store has succeeded whatever Redis remembers, since Redis is the
 queue and the store the record.
+
+Faults: jobs are enqueued with `Retry(max=job_retries)` (see worker.faults: only worker deaths
+are retried). Polling a running job sweeps its queue for abandoned jobs, so a job whose worker
+died is reported (queued again, or failed with the reason) within `dead_worker_s` even when no
+worker is left to sweep. A job Redis no longer knows (a Redis restart without persistence)
+whose request is in the store is reported failed as lost: submitting it again resumes it.
 """
 
 from __future__ import annotations
@@ -14,14 +20,16 @@ from datetime import datetime
 from typing import Any, Literal
 
 from redis import Redis
-from rq import Queue
+from rq import Queue, Retry
 from rq.command import send_stop_job_command
 from rq.exceptions import InvalidJobOperation, NoSuchJobError
 from rq.job import Job, JobStatus
+from rq.registry import StartedJobRegistry
 
 from vpp_core.errors import NotFoundError
 from worker import artifacts as art
-from worker.jobs import error_record, failure_reason, plan_job
+from worker.faults import delete_job, failure_reason
+from worker.jobs import error_record, plan_job
 from worker.settings import Settings
 from worker.store import Store
 
@@ -45,6 +53,14 @@ PROGRESS_KEYS = ("stage", "done", "total")
 """The job meta fields that make up `progress`."""
 CANCEL_WAIT_S = 3.0
 """How long DELETE waits for a running job to stop before it answers."""
+LOST = {
+    "type": "JobLost",
+    "title": "Job lost",
+    "detail": "the job queue (Redis) no longer knows this job, which was accepted and has not "
+    "finished: Redis restarted without its data, or the job's record expired. Submit the same "
+    "request again: it resumes from what the store holds (ray-tracing chunks, R).",
+}
+"""The error of an accepted job that Redis forgot."""
 
 
 @dataclass
@@ -67,20 +83,26 @@ def make_queue(conn: Redis, settings: Settings) -> Queue:
 
 
 def submit(
-    queue: Queue, settings: Settings, plan: str, func: Callable[[str], Any] = plan_job
+    queue: Queue,
+    settings: Settings,
+    store: Store,
+    plan: str,
+    func: Callable[[str], Any] = plan_job,
 ) -> None:
     """Enqueue `func(plan)` as job `plan` (a plan, study or point cloud id) unless it is queued
-    or running (then the caller joins it)."""
+    or running (then the caller joins it) or its result is stored (it finished meanwhile)."""
     conn = queue.connection
     lock = f"vpp:submit-lock:{plan}"
     while not conn.set(lock, "1", nx=True, px=SUBMIT_LOCK_MS):
         time.sleep(0.01)
     try:
-        job = _fetch(conn, plan)
+        job = _fetch(conn, plan)  # before the store: a job stores its result, then finishes
         if job is not None and _status(job) in ("queued", "running"):
             return
+        if any(store.exists(key) for key in art.done_keys(plan)):
+            return
         if job is not None:
-            job.delete()
+            delete_job(job)
         queue.enqueue_call(
             func,
             args=(plan,),
@@ -89,6 +111,7 @@ def submit(
             result_ttl=settings.result_ttl_s,
             failure_ttl=settings.failure_ttl_s,
             description=f"{func.__name__.removesuffix('_job')} {plan[:12]}",
+            retry=Retry(max=settings.job_retries) if settings.job_retries else None,
         )
     finally:
         conn.delete(lock)
@@ -100,7 +123,12 @@ def state(conn: Redis, store: Store, plan: str) -> JobState:
     if any(store.exists(key) for key in art.done_keys(plan)):
         return _from_job(plan, "succeeded", {"stage": "done"}, job)
     status = _status(job) if job is not None else None
+    if job is not None and status == "running":  # its worker may have died: sweep, look again
+        StartedJobRegistry(job.origin, connection=conn).cleanup()
+        status = _status(job)
     if job is None or status is None:
+        if store.exists(art.request_key(plan)):
+            return JobState(id=plan, status="failed", error=LOST)
         raise NotFoundError(f"no job {plan!r}")
     meta = job.meta
     progress: dict[str, Any] = {k: meta[k] for k in PROGRESS_KEYS if k in meta} or {"stage": status}

@@ -61,6 +61,26 @@ class Settings(BaseSettings):
     """How long failed job records (with their reason) stay in Redis."""
     retry_after_s: int = Field(2, ge=1)
     """Retry-After sent while a job is queued or running, and with 503."""
+    job_retries: int = Field(2, ge=0)
+    """How many times a plan, study, point cloud or ray-tracing chunk job whose worker died
+    (work horse killed, e.g. out of memory; worker process killed; Redis lost mid-job) is put
+    back on the queue before it fails with that reason. A job that raises (bad input, timeout,
+    full store) fails at once: it would fail again."""
+    dead_worker_s: int = Field(30, ge=3)
+    """A started job whose worker has sent no heartbeat for this long counts as abandoned (its
+    worker died) and is retried or failed by the next sweep; busy workers beat every third of it
+    (RQ's own figure is 90 s)."""
+    sweep_s: int = Field(15, ge=1)
+    """Seconds between two sweeps for abandoned jobs: by each idle worker (RQ maintenance, RQ's
+    default is 10 min) and by each plan job for its chunks. A job's worker death is acted on
+    within dead_worker_s + sweep_s (at once when only its work horse was killed)."""
+    idempotency_ttl_s: int = Field(86_400, gt=0)
+    """How long the answer to a POST with an `Idempotency-Key` header is remembered and replayed
+    to retries with the same key and request (s); afterwards the key may be used anew."""
+    idempotency_lock_s: int = Field(600, gt=0)
+    """How long a POST with an `Idempotency-Key` holds its key while it is processed (s): retries
+    meanwhile get 409. Longer than the slowest request (a big upload); a request whose process
+    died frees its key when this expires."""
 
     @field_validator("api_keys")
     @classmethod

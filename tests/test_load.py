@@ -1,0 +1,53 @@
+"""A short run of bench/load.py's mixed load (uploads, plans, polls) against uvicorn on loopback
+with real forking workers: no 5xx, no transport error, every plan computed once."""
+
+from __future__ import annotations
+
+import asyncio
+import importlib.util
+import os
+import sys
+
+import httpx
+import pytest
+
+from tests.conftest import ROOT
+from vpp_core.samples import sample_stl
+
+pytestmark = pytest.mark.slow
+
+
+def bench_load():
+    spec = importlib.util.spec_from_file_location("vpp_bench_load", ROOT / "bench" / "load.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # its dataclass looks its module up
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_a_short_mixed_load_gets_no_5xx_and_computes_each_plan_once(
+    live_api, start_workers, redis_db, tmp_path
+) -> None:
+    load = bench_load()
+    start_workers(2)
+    load.svc.wait_workers(redis_db, os.environ["VPP_QUEUE"], 2)
+    r = httpx.post(f"{live_api}/v1/meshes", files={"file": ("b.stl", sample_stl())}, timeout=60)
+    tally = asyncio.run(load.drive(live_api, r.json()["id"], clients=20, duration=3, distinct=4))
+    lines = {x["endpoint"]: x for x in tally.lines()}
+    assert set(lines) == {endpoint for _, endpoint in load.MIX}, lines
+    assert tally.server_errors() == 0, lines
+    assert all(x["errors"] == 0 for x in lines.values()), lines
+    assert 2 <= len(tally.plans) <= 5  # the common plan and up to 4 distinct ones
+    statuses = load.wait_jobs(live_api, tally.plans, timeout=120)
+    assert statuses == {"succeeded": len(tally.plans)}
+    runs = load.job_runs(tmp_path / "workers.log", "plan", tally.plans)
+    assert {job: load.computed(r) for job, r in runs.items()} == dict.fromkeys(tally.plans, 1)
+
+
+def test_the_load_only_targets_loopback() -> None:
+    load = bench_load()
+    with pytest.raises(ValueError, match="loopback"):
+        asyncio.run(load.drive("http://example.org:80", "0" * 64, duration=0.1))
+    with pytest.raises(SystemExit, match="loopback"):
+        load.check_loopback_redis("redis://10.0.0.1:6379/8")

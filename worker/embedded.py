@@ -10,6 +10,7 @@ from __future__ import annotations
 import shutil
 import subprocess
 import tempfile
+import threading
 import time
 from pathlib import Path
 from types import TracebackType
@@ -22,6 +23,8 @@ from worker.pool import die_with_parent
 
 START_TIMEOUT_S = 10.0
 """How long the server may take to answer its first PING."""
+WATCH_S = 1.0
+"""Seconds between two looks at whether the server is still alive (`watch`)."""
 
 
 def _executable() -> str:
@@ -38,7 +41,8 @@ def _executable() -> str:
 
 
 class EmbeddedRedis:
-    """A private redis-server on a unix socket, stopped and removed on close."""
+    """A private redis-server on a unix socket, stopped and removed on close; `watch()` starts
+    it again (same socket, empty) whenever it dies."""
 
     def __init__(self) -> None:
         # /tmp, not $TMPDIR: a unix socket path must stay under ~107 bytes
@@ -47,11 +51,38 @@ class EmbeddedRedis:
         cmd = [_executable(), "--port", "0", "--unixsocket", str(socket)]
         cmd += ["--unixsocketperm", "700", "--save", "", "--appendonly", "no"]
         cmd += ["--dir", str(self.dir), "--daemonize", "no", "--loglevel", "warning"]
-        self._proc = subprocess.Popen(
-            cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, preexec_fn=die_with_parent
-        )
+        self._cmd = cmd
+        self._closing = threading.Event()
+        self._watching = False
+        self.restarts = 0
         self.url = f"unix://{socket}?db=0"
+        self._start()
+
+    def _start(self) -> None:
+        self._proc = subprocess.Popen(
+            self._cmd,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+            preexec_fn=die_with_parent,
+        )
         self._wait_ready()
+
+    def watch(self) -> None:
+        """Start the server again, every WATCH_S, if it has died (killed, OOM): the queue comes
+        back empty, workers and the API reconnect, and jobs it held read `JobLost`."""
+
+        self._watching = True
+
+        def loop() -> None:
+            while not self._closing.wait(WATCH_S):
+                if self._proc.poll() is not None:
+                    try:
+                        self._start()
+                        self.restarts += 1
+                    except UnavailableError:
+                        pass  # tried again next round
+
+        threading.Thread(target=loop, name="embedded-redis-watch", daemon=True).start()
 
     def _wait_ready(self) -> None:
         deadline = time.monotonic() + START_TIMEOUT_S
@@ -62,12 +93,14 @@ class EmbeddedRedis:
                 return
             except (ConnectionError, FileNotFoundError):
                 if self._proc.poll() is not None or time.monotonic() > deadline:
-                    self.close()
+                    if not self.restarts and not self._watching:
+                        self.close()  # the first start: nothing to keep
                     raise UnavailableError("the embedded redis-server did not start") from None
                 time.sleep(0.02)
 
     def close(self) -> None:
         """Stop the server (after the workers have stopped) and remove its directory."""
+        self._closing.set()
         if self._proc.poll() is None:
             self._proc.terminate()
             try:

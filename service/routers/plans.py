@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Header, Response
@@ -58,12 +59,24 @@ def get_plan(
     if_none_match: Annotated[str | None, Header()] = None,
 ) -> Response:
     """The plan document (SPEC §8) once its job has succeeded; immutable."""
-    etag = f'"{plan_id}"'
+    return named_forever(
+        (plan_id, "plan"), if_none_match, lambda: planning.plan_json(store, plan_id)
+    )
+
+
+def named_forever(
+    content: tuple[str, str],
+    if_none_match: str | None,
+    body: Callable[[], bytes],
+    media_type: str = "application/json",
+) -> Response:
+    """An answer that the content id (id, what it names) names forever: its ETag, immutable
+    caching, and 304 on a matching If-None-Match (then `body` is never read)."""
+    etag = f'"{planning.content_id(*content)}"'
     headers = {"ETag": etag, "Cache-Control": IMMUTABLE}
-    data = planning.plan_json(store, plan_id)
     if if_none_match and etag in [t.strip() for t in if_none_match.split(",")]:
         return Response(status_code=304, headers=headers)
-    return Response(data, media_type="application/json", headers=headers)
+    return Response(body(), media_type=media_type, headers=headers)
 
 
 PNG: dict[int | str, dict[str, Any]] = {

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import gzip
+from functools import partial
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -12,13 +13,14 @@ from fastapi.responses import HTMLResponse
 from service import planning
 from service.deps import StoreDep
 from service.models import Problem, RelatedPlans
+from service.routers.plans import named_forever
 
 router = APIRouter(tags=["viewer"])
 STATIC_DIR = Path(__file__).resolve().parent.parent / "static" / "viewer"
 """The page and its bundle (built from viewer/ by `npm run build`)."""
-IMMUTABLE = "public, max-age=31536000, immutable"
+OCTETS = "application/octet-stream"
 BINARY: dict[int | str, dict[str, Any]] = {
-    200: {"content": {"application/octet-stream": {}}},
+    200: {"content": {OCTETS: {}}},
     304: {"description": "Not modified"},
     404: {"model": Problem},
 }
@@ -45,7 +47,8 @@ def get_plan_scene(
 ) -> Response:
     """Per-face achieved resolution and state, and the faces each viewpoint sees (binary)."""
     gzipped = "gzip" in (accept_encoding or "")
-    response = _immutable(plan_id, if_none_match, lambda: _scene(store, plan_id, gzipped))
+    scene = partial(_scene, store, plan_id, gzipped)
+    response = named_forever((plan_id, "plan"), if_none_match, scene, OCTETS)
     response.headers["Vary"] = "Accept-Encoding"
     if gzipped and response.status_code == 200:
         response.headers["Content-Encoding"] = "gzip"
@@ -63,7 +66,8 @@ def get_mesh_geometry(
     mesh_id: str, store: StoreDep, if_none_match: Annotated[str | None, Header()] = None
 ) -> Response:
     """The mesh's vertices (float32 mm) and faces (uint32), for drawing (binary)."""
-    return _immutable(mesh_id, if_none_match, lambda: planning.mesh_geometry(store, mesh_id))
+    geometry = partial(planning.mesh_geometry, store, mesh_id)
+    return named_forever((mesh_id, "mesh"), if_none_match, geometry, OCTETS)
 
 
 @router.get(
@@ -72,12 +76,3 @@ def get_mesh_geometry(
 def get_related_plans(plan_id: str, store: StoreDep) -> RelatedPlans:
     """The same request's `density` and `visibility` plans: ids, whether computed, bodies."""
     return planning.related_plans(store, plan_id)
-
-
-def _immutable(content: str, if_none_match: str | None, body: Any) -> Response:
-    """A binary answer named forever by `content`: 304 on a matching If-None-Match."""
-    etag = f'"{planning.content_id(content, "resource")}"'
-    headers = {"ETag": etag, "Cache-Control": IMMUTABLE}
-    if if_none_match and etag in [t.strip() for t in if_none_match.split(",")]:
-        return Response(status_code=304, headers=headers)
-    return Response(body(), media_type="application/octet-stream", headers=headers)

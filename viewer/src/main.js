@@ -128,7 +128,13 @@ async function formulations(plan) {
 async function switchTo(related) {
   if (related.id === state.plan) return;
   api.ready = false;
-  if (!related.available) await postJson('/v1/plans', related.request);
+  try {
+    if (!related.available) await postJson('/v1/plans', related.request);
+  } catch (e) {
+    status(`Could not submit the ${related.formulation} plan: ${e.message || e}`, true);
+    api.ready = true; // the plan shown is still whole
+    return;
+  }
   history.replaceState(null, '', `${base}${related.view_url}`);
   await run(related.id);
 }

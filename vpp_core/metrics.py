@@ -76,8 +76,8 @@ def evaluate(
     delta = density_matrix(r, areas)
     best = np.asarray(delta.sum(axis=1)).ravel()
     achieved = np.asarray(delta[:, selected].sum(axis=1)).ravel()
-    seen_any = _seen(r, np.arange(r.shape[1]))
-    seen_sel = _seen(r, selected)
+    seen_any = seen(r, np.arange(r.shape[1]))
+    seen_sel = seen(r, selected)
     target = 1.0 / resolution_mm
     w = areas * counted
     return Metrics(
@@ -128,7 +128,7 @@ def histogram(
     )
 
 
-def _seen(r: sp.csc_array, columns: np.ndarray) -> np.ndarray:
+def seen(r: sp.csc_array, columns: np.ndarray) -> np.ndarray:
     """(M,) bool: face hit by at least one valid ray of the given views."""
     sub = sp.csr_array(r[:, columns])
     return np.asarray(np.diff(sub.indptr) > 0)

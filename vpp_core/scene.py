@@ -24,7 +24,7 @@ from vpp_core.density import density_matrix, meets
 from vpp_core.document import PlanDocument
 from vpp_core.errors import VppError
 from vpp_core.mesh import Part
-from vpp_core.metrics import resolution_mm
+from vpp_core.metrics import resolution_mm, seen
 
 MAGIC = b"VPPS"
 ALIGN = 8
@@ -56,15 +56,13 @@ def face_results(
 ) -> FaceResults:
     """Results per face of R (M, N) for the views `selected` (K,), areas (M,) mm², r̄ in mm."""
     r = sp.csc_array(counts)
-    achieved = np.asarray(density_matrix(r, areas)[:, selected].sum(axis=1)).ravel()
     sub = sp.csc_array(r[:, selected])
     sub.sort_indices()
-    seen_sel = np.bincount(sub.indices, minlength=r.shape[0]) > 0
-    seen_any = np.diff(sp.csr_array(r).indptr) > 0
+    achieved = np.asarray(density_matrix(sub, areas).sum(axis=1)).ravel()  # δ_ij of J* only
     state = np.full(r.shape[0], UNMET, np.uint8)
     state[meets(achieved, 1.0 / target_mm)] = MET
-    state[~seen_sel] = UNCOVERED
-    state[~seen_any] = UNCOVERABLE
+    state[~seen(r, selected)] = UNCOVERED
+    state[~seen(r, np.arange(r.shape[1]))] = UNCOVERABLE
     state[~counted] = EXCLUDED
     return FaceResults(
         resolution_mm=resolution_mm(achieved).astype(np.float32),

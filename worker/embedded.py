@@ -93,7 +93,7 @@ class EmbeddedRedis:
                 return
             except (ConnectionError, FileNotFoundError):
                 if self._proc.poll() is not None or time.monotonic() > deadline:
-                    if not self.restarts and not self._watching:
+                    if not self._watching:
                         self.close()  # the first start: nothing to keep
                     raise UnavailableError("the embedded redis-server did not start") from None
                 time.sleep(0.02)

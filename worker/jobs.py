@@ -18,6 +18,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -228,16 +229,12 @@ def chunk_job(
 ) -> dict[str, Any]:
     """Trace chunk `index` (views [index·size, (index+1)·size)) of `trace_id` into the store,
     with the ray backend the plan asked for (its part of the trace id)."""
-    ctx = Context.current()
-    try:
-        return _chunk(ctx, mesh_id, trace_id, size, index, backend)
-    except BaseException as exc:
-        fail_fast(ctx.job, exc)
-        raise
+    body = partial(_chunk, mesh_id=mesh_id, size=size, index=index, backend=backend)
+    return run_job(body, trace_id)
 
 
 def _chunk(
-    ctx: Context, mesh_id: str, trace_id: str, size: int, index: int, backend: str | None
+    ctx: Context, trace_id: str, *, mesh_id: str, size: int, index: int, backend: str | None
 ) -> dict[str, Any]:
     key = art.chunk_key(trace_id, size, index)
     if ctx.store.exists(key):

@@ -63,22 +63,20 @@ class FileStore:
         """Write a hidden `.tmp-*` file (never a valid key, so never served), fsync it, and
         rename it over the key; a full or failing disk is UnavailableError naming the key."""
         path = self._path(key)
+        tmp = None
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
             fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp-")
-        except OSError as exc:
-            raise UnavailableError(f"store {self.url}: cannot write {key}: {exc}") from None
-        try:
             with os.fdopen(fd, "wb") as f:
                 f.write(data)
                 f.flush()
                 os.fsync(f.fileno())
             os.replace(tmp, path)
-        except OSError as exc:
-            Path(tmp).unlink(missing_ok=True)
-            raise UnavailableError(f"store {self.url}: cannot write {key}: {exc}") from None
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
+        except BaseException as exc:
+            if tmp is not None:
+                Path(tmp).unlink(missing_ok=True)
+            if isinstance(exc, OSError):
+                raise UnavailableError(f"store {self.url}: cannot write {key}: {exc}") from None
             raise
 
     def get(self, key: str) -> bytes:

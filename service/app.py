@@ -67,7 +67,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.queue = make_queue(conn, settings)
     app.state.store = open_store(settings.store_url)
     problems.install(app)
-    idempotency.install_document(app)
+    problems.extend_openapi(app, idempotency.document)
     for router in (meshes.router, plans.router, studies.router, jobs.router, health.router):
         app.include_router(router)
     app.include_router(viewer.router)

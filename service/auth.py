@@ -52,11 +52,17 @@ def digest(key: str) -> bytes:
     return hashlib.sha256(key.encode("latin-1")).digest()
 
 
-def check(digests: Sequence[bytes], authorization: str | None) -> None:
-    """Raise UnauthenticatedError or ForbiddenError unless `authorization` carries a key."""
+def bearer_token(authorization: str | None) -> str | None:
+    """The token of an `Authorization: Bearer <token>` header value; None for anything else."""
     scheme, _, token = (authorization or "").strip().partition(" ")
     token = token.strip()
-    if scheme.lower() != "bearer" or not token or " " in token:
+    return token if scheme.lower() == "bearer" and token else None
+
+
+def check(digests: Sequence[bytes], authorization: str | None) -> None:
+    """Raise UnauthenticatedError or ForbiddenError unless `authorization` carries a key."""
+    token = bearer_token(authorization)
+    if token is None or " " in token:
         raise UnauthenticatedError("this API needs the header `Authorization: Bearer <API key>`")
     presented = digest(token)
     matched = False

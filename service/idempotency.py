@@ -23,8 +23,8 @@ then the answer, with EX `idempotency_ttl_s`. It is an ASGI middleware inside th
 and the body cap (`service.auth`, `service.limits`), so a refused request never takes a key,
 and it sees every POST route, including ones added later; requests without the header pass
 through untouched. With the header, the body is spooled (a temporary file past 1 MiB) to be
-digested before the route reads it. `document` declares the header, its answers and the
-replay header in the OpenAPI document.
+digested before the route reads it. `document` (applied with `problems.extend_openapi`)
+declares the header, its answers and the replay header in the OpenAPI document.
 """
 
 from __future__ import annotations
@@ -40,7 +40,6 @@ from typing import IO, Any, TypeVar
 
 import anyio
 from anyio import to_thread
-from fastapi import FastAPI
 from redis import Redis
 from redis.exceptions import RedisError
 from starlette.datastructures import Headers
@@ -94,10 +93,8 @@ def parse_key(values: list[str]) -> str:
 
 def client_of(headers: Headers) -> str:
     """Whose keys these are: the bearer token's digest, or "anonymous"."""
-    scheme, _, token = headers.get("authorization", "").strip().partition(" ")
-    if scheme.lower() == "bearer" and token.strip():
-        return auth.digest(token.strip()).hex()[:32]
-    return "anonymous"
+    token = auth.bearer_token(headers.get("authorization"))
+    return auth.digest(token).hex()[:32] if token else "anonymous"
 
 
 class BodyDigest:
@@ -188,10 +185,7 @@ class Idempotency:
             else:
                 await self._again(scope, receive, send, record)
         except RedisError as exc:
-            detail = f"job queue unreachable: {exc}"
-            await problems.problem(request, 503, "Service unavailable", detail)(
-                scope, receive, send
-            )
+            await problems.redis_error_response(request, exc)(scope, receive, send)
 
     def _claim(self, name: str, pending: str) -> dict[str, Any] | None:
         """None when the key is ours now (SET NX), else the record that holds it."""
@@ -259,10 +253,7 @@ async def _read(scope: Scope, receive: Receive, send: Send) -> tuple[IO[bytes], 
     except ClientDisconnect:
         return None
     except HTTPException as exc:  # the body cap (service.limits) or the upload limit
-        title = problems.TITLES.get(exc.status_code, "HTTP error")
-        await problems.problem(Request(scope), exc.status_code, title, str(exc.detail))(
-            scope, receive, send
-        )
+        await problems.http_error_response(Request(scope), exc)(scope, receive, send)
         return None
 
 
@@ -379,16 +370,3 @@ def document(doc: dict[str, Any]) -> dict[str, Any]:
                 if code.startswith("2"):
                     response.setdefault("headers", {})[REPLAYED] = REPLAYED_HEADER
     return doc
-
-
-def install_document(app: FastAPI) -> None:
-    """Apply `document` once to the app's (cached) OpenAPI document."""
-    build = app.openapi
-    done: list[dict[str, Any]] = []
-
-    def openapi() -> dict[str, Any]:
-        if not done:
-            done.append(document(build()))
-        return done[0]
-
-    app.openapi = openapi  # type: ignore[method-assign]

@@ -36,9 +36,8 @@ class JsonBodyLimit:
         detail = f"request body exceeds the limit of {self.max_bytes} bytes (VPP_MAX_JSON_BYTES)"
         length = headers.get("content-length", "")
         if length.isdigit() and int(length) > self.max_bytes:
-            await problems.problem(Request(scope), 413, "Payload too large", detail)(
-                scope, receive, send
-            )
+            refused = HTTPException(413, detail)  # answered as the handlers answer one raised
+            await problems.http_error_response(Request(scope), refused)(scope, receive, send)
             return
         seen = 0
 

@@ -89,16 +89,27 @@ async def _validation(request: Request, exc: Exception) -> JSONResponse:
     return problem(request, 422, "Invalid request", detail, errors=errors)
 
 
-async def _http(request: Request, exc: Exception) -> JSONResponse:
-    assert isinstance(exc, HTTPException)
+def http_error_response(request: Request, exc: HTTPException) -> JSONResponse:
+    """The problem+json answer to an HTTPException (also what middleware sends)."""
     title = TITLES.get(exc.status_code, "HTTP error")
     response = problem(request, exc.status_code, title, str(exc.detail))
     response.headers.update(exc.headers or {})
     return response
 
 
-async def _redis(request: Request, exc: Exception) -> JSONResponse:
+def redis_error_response(request: Request, exc: RedisError) -> JSONResponse:
+    """The 503 problem+json answer to a Redis that cannot be reached (also from middleware)."""
     return problem(request, 503, "Service unavailable", f"job queue unreachable: {exc}")
+
+
+async def _http(request: Request, exc: Exception) -> JSONResponse:
+    assert isinstance(exc, HTTPException)
+    return http_error_response(request, exc)
+
+
+async def _redis(request: Request, exc: Exception) -> JSONResponse:
+    assert isinstance(exc, RedisError)
+    return redis_error_response(request, exc)
 
 
 async def _internal(request: Request, exc: Exception) -> JSONResponse:
@@ -138,21 +149,23 @@ def document_problems(doc: dict[str, Any]) -> dict[str, Any]:
     return doc
 
 
-def _problem_openapi(app: FastAPI) -> Callable[[], dict[str, Any]]:
-    """app.openapi with `document_problems` applied once to the cached document."""
+def extend_openapi(app: FastAPI, rewrite: Callable[[dict[str, Any]], dict[str, Any]]) -> None:
+    """Make `app.openapi` apply `rewrite` once to the document it builds (and then cache it);
+    each call adds one rewrite after those before."""
     build = app.openapi
+    done: list[dict[str, Any]] = []
 
     def openapi() -> dict[str, Any]:
-        if app.openapi_schema is None:
-            app.openapi_schema = document_problems(build())
-        return app.openapi_schema
+        if not done:
+            done.append(rewrite(build()))
+        return done[0]
 
-    return openapi
+    app.openapi = openapi  # type: ignore[method-assign]
 
 
 def install(app: FastAPI) -> None:
     """Register the handlers on `app` and document them in its OpenAPI document."""
-    app.openapi = _problem_openapi(app)  # type: ignore[method-assign]
+    extend_openapi(app, document_problems)
     app.add_exception_handler(VppError, _vpp_error)
     app.add_exception_handler(RequestValidationError, _validation)
     app.add_exception_handler(HTTPException, _http)

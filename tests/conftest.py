@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import os
 from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -177,24 +178,19 @@ def s3_endpoint(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
         yield endpoint
 
 
-@pytest.fixture
-def live_api(svc_env: dict[str, str]) -> Iterator[str]:
-    """The app (VPP_* of `svc_env`) served by uvicorn in a thread on loopback; its base URL."""
+@contextmanager
+def serving(app: Any) -> Iterator[str]:
+    """`app` served by uvicorn in a thread on a free loopback port; its base URL."""
     import socket
     import threading
     import time
 
     import uvicorn
 
-    from service.app import create_app
-    from worker.settings import Settings
-
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
-    config = uvicorn.Config(
-        create_app(Settings()), host="127.0.0.1", port=port, log_level="warning", workers=1
-    )
+    config = uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning", workers=1)
     server = uvicorn.Server(config)
     thread = threading.Thread(target=server.run, daemon=True)
     thread.start()
@@ -202,6 +198,18 @@ def live_api(svc_env: dict[str, str]) -> Iterator[str]:
     while not server.started:
         assert thread.is_alive() and time.monotonic() < deadline, "uvicorn did not start"
         time.sleep(0.02)
-    yield f"http://127.0.0.1:{port}"
-    server.should_exit = True
-    thread.join(10)
+    try:
+        yield f"http://127.0.0.1:{port}"
+    finally:
+        server.should_exit = True
+        thread.join(10)
+
+
+@pytest.fixture
+def live_api(svc_env: dict[str, str]) -> Iterator[str]:
+    """The app (VPP_* of `svc_env`) served by uvicorn in a thread on loopback; its base URL."""
+    from service.app import create_app
+    from worker.settings import Settings
+
+    with serving(create_app(Settings())) as url:
+        yield url

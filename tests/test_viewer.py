@@ -10,16 +10,13 @@ from __future__ import annotations
 import io
 import os
 import shutil
-import socket
-import threading
-import time
 from collections.abc import Iterator
-from contextlib import contextmanager
 from typing import Any
 
 import numpy as np
 import pytest
 
+from tests.conftest import serving
 from tests.test_service_jobs import submit, upload_sample, wait
 from vpp_core.mesh import load_mesh
 from vpp_core.samples import sample_stl
@@ -66,25 +63,6 @@ def browser() -> Iterator[Any]:
         b.close()
 
 
-@contextmanager
-def serving(app: Any) -> Iterator[str]:
-    """The app served by uvicorn on a free loopback port; its base URL."""
-    import uvicorn
-
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="error"))
-    thread = threading.Thread(target=server.run, daemon=True)
-    thread.start()
-    deadline = time.monotonic() + 10
-    while not server.started and time.monotonic() < deadline:
-        time.sleep(0.02)
-    yield f"http://127.0.0.1:{port}"
-    server.should_exit = True
-    thread.join(10)
-
-
 @pytest.fixture
 def live(api, start_workers) -> Iterator[tuple[Any, str]]:
     """(TestClient, base URL): the same app served by uvicorn on loopback, one worker."""
@@ -96,13 +74,14 @@ def live(api, start_workers) -> Iterator[tuple[Any, str]]:
 class Page:
     """A viewer page with its console errors collected."""
 
-    def __init__(self, browser: Any, url: str) -> None:
+    def __init__(self, browser: Any, url: str, wait_ready: bool = True) -> None:
         self.page = browser.new_page(viewport=VIEWPORT, device_scale_factor=1)
         self.errors: list[str] = []
         self.page.on("console", lambda m: self.errors.extend([m.text] if m.type == "error" else []))
         self.page.on("pageerror", lambda e: self.errors.append(str(e)))
         self.page.goto(url)
-        self.ready()
+        if wait_ready:
+            self.ready()
 
     def ready(self) -> None:
         self.page.wait_for_function(
@@ -250,9 +229,7 @@ def test_the_formulation_toggle_computes_and_shows_the_other_plan(live, browser)
 
 def test_the_page_of_a_running_plan_waits_for_it_and_an_unknown_one_says_so(live, browser) -> None:
     client, url = live
-    page = Page.__new__(Page)
-    page.page = browser.new_page(viewport=VIEWPORT)
-    page.page.goto(f"{url}/v1/plans/{'0' * 64}/view")
+    page = Page(browser, f"{url}/v1/plans/{'0' * 64}/view", wait_ready=False)
     page.page.wait_for_function("window.vppViewer.failed", timeout=10_000)
     assert "no job" in page.js("window.vppViewer.failed") or "not" in page.js(
         "window.vppViewer.failed"

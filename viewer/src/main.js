@@ -58,7 +58,7 @@ async function load(plan) {
   Object.assign(state, { plan, doc, scene });
   view.setPlan(colours, doc.viewpoints, doc.sensor, a.view_offsets, a.view_faces);
   if (first) view.fit(true);
-  summary(doc, scene);
+  summary(doc);
   legend(doc, scene);
   links(plan);
   stepper(doc.viewpoints.length);
@@ -69,7 +69,7 @@ async function load(plan) {
   api.ready = true;
 }
 
-function summary(doc, scene) {
+function summary(doc) {
   const m = doc.metrics;
   const s = doc.solver;
   const rows = [
@@ -245,7 +245,6 @@ const api = {
   fit: (all = true) => view.fit(all),
   setShading: (on) => { $('shading').checked = on; view.setShading(on); },
   show: (what, on) => view.show(what, on),
-  frames: () => view.frames || 0,
   drawn: () => view.drawn(),
   /** Mean milliseconds per frame over a full turn of the eye in n drawn steps (benchmarks). */
   orbit: async (n = 60) => {

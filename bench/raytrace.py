@@ -22,6 +22,8 @@ over the wall time (Mrays/s), and `px/s` counts whole frames (views x 2.3 Mpx / 
   window rays in chunks of whole rows (~CHUNK_RAYS) over a T-thread pool, first hits only.
 - one row per project backend: `trace_counts(..., backend=B, threads=T)`: R complete,
   post-processing (depth of field, incidence, per-face counts, sparse assembly) included.
+  `packets` uses the system's Embree 3 where installed (the ceiling's library), else
+  embreex's Embree 4 (no coherent packet path): the setup line says which.
 
 The scene of each method is built once per part (not timed); each measurement is warmed up
 on one view, then timed `--repeat` times (the fastest is kept). One JSON line per
@@ -57,6 +59,7 @@ sys.path.insert(0, str(ROOT))
 
 from vpp_core.embree import CHUNK_RAYS, EmbreeBackend, block_directions  # noqa: E402
 from vpp_core.mesh import Part, load_mesh, part_from_arrays  # noqa: E402
+from vpp_core.packets import library as packets_library  # noqa: E402
 from vpp_core.pose import Viewpoints, make_viewpoints  # noqa: E402
 from vpp_core.rays import Block  # noqa: E402
 from vpp_core.raytrace import (  # noqa: E402
@@ -526,6 +529,7 @@ def main(argv: list[str] | None = None) -> int:
             "cpus": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None,
             "ceiling": str(ceiling),
             "malloc_fixed": malloc_fixed,
+            "packets_embree": f"{packets_library().major} ({packets_library().path})",
             "numpy": np.__version__,
         }
     )

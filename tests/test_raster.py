@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 import pytest
@@ -14,7 +15,7 @@ from vpp_core.embree import EmbreeBackend, block_directions
 from vpp_core.mesh import Part, load_mesh, part_from_arrays
 from vpp_core.plan import plan
 from vpp_core.pose import Viewpoints, make_viewpoints
-from vpp_core.raster import pixel_scale, view_first_hits
+from vpp_core.raster import RasterBackend, pixel_scale, view_first_hits
 from vpp_core.rays import Block
 from vpp_core.raytrace import _hull_points, _window, make_backend, trace_counts
 from vpp_core.sensor import Sensor
@@ -110,18 +111,23 @@ def unexplained(part: Part, sensor: Sensor, views: Viewpoints, j: int, pair, uv)
     return min(edge_distance_px(part, sensor, views, j, int(f), uv) for f in pair)
 
 
+IdsOf = Callable[[int, tuple[int, int, int, int]], np.ndarray]
+"""A backend's first face per pixel of view j's window, flattened row-major."""
+
+
 def compare_views(
-    part: Part, sensor: Sensor, views: Viewpoints
+    part: Part, sensor: Sensor, views: Viewpoints, ids_of: IdsOf
 ) -> tuple[int, int, np.ndarray, float]:
-    """(hit pixels, disagreeing pixels, (M, N) of those per face and view (either side),
-    largest distance to an edge of a disagreement that is not a depth tie, px)."""
+    """ids_of against Embree rays: (hit pixels, disagreeing pixels, (M, N) of those per face
+    and view (either side), largest distance to an edge of a disagreement that is not a depth
+    tie, px)."""
     embree = EmbreeBackend(part)
     hull = _hull_points(part.vertices)
     hits, bad, worst = 0, 0, 0.0
     touched = np.zeros((part.n_faces + 1, len(views)), dtype=np.int64)  # last row: misses
     for j in range(len(views)):
         window = _window(sensor, views.positions[j], views.rotations()[j], hull)
-        a = raster_ids(part, sensor, views, j, window)
+        a = ids_of(j, window)
         b = embree_ids(embree, sensor, views, j, window)
         rep = np.append(part.representative, -1)  # duplicates of a face count as that face
         differ = np.flatnonzero(rep[a] != rep[b])
@@ -144,11 +150,14 @@ def test_raster_agrees_with_embree_on_shared_meshes(name: str, units: str) -> No
     path = shared_dir(MESHES) / name
     part = load_mesh(path.read_bytes(), path.suffix, units)
     views = generate(part, PAPER, GeneratorSettings(count=20, seed=0)).views
-    hits, bad, touched, worst = compare_views(part, PAPER, views)
+    hits, bad, touched, worst = compare_views(
+        part, PAPER, views, lambda j, window: raster_ids(part, PAPER, views, j, window)
+    )
     assert hits > 0
     assert bad <= 1e-3 * hits, f"{bad} of {hits} hit pixels differ"
     assert worst < EDGE_PX, f"a disagreement {worst:.2g} px from any edge, and no depth tie"
-    r_raster = trace_counts(part, PAPER, views, backend=make_backend(part, "raster")).counts
+    rasteriser = RasterBackend(part, max_faces_per_pixel=math.inf)  # no view to packets
+    r_raster = trace_counts(part, PAPER, views, backend=rasteriser).counts
     r_embree = trace_counts(part, PAPER, views, backend=make_backend(part, "embree")).counts
     a, b = r_raster.toarray().astype(np.int64), r_embree.toarray().astype(np.int64)
     # R within 0.1 %, but for the disagreeing pixels above, each of which moves one ray
@@ -204,35 +213,47 @@ def test_backends_give_the_same_counts_on_a_plate(depth: float) -> None:
     views = make_viewpoints(np.array([[1.3, -2.1, depth]]), np.array([[0.05, 0.02, -1.0]]))
     r = [
         trace_counts(part, PAPER, views, backend=make_backend(part, n)).counts
-        for n in ("raster", "embree")
+        for n in ("raster", "packets", "embree")
     ]
     assert r[0].sum() > 1000
-    assert np.abs(r[0].toarray() - r[1].toarray()).max() <= 2
+    assert np.abs(r[0].toarray() - r[2].toarray()).max() <= 2
+    assert np.abs(r[1].toarray() - r[2].toarray()).max() <= 2
 
 
 def test_unknown_backend_is_refused() -> None:
     from vpp_core.errors import VppError
 
-    with pytest.raises(VppError, match="unknown ray backend 'optix'; available: raster, embree"):
+    with pytest.raises(
+        VppError, match="unknown ray backend 'optix'; available: raster, packets, embree"
+    ):
         make_backend(plate_part(), "optix")
 
 
-def test_plans_from_both_backends_agree() -> None:
+def test_plans_from_every_backend_agree() -> None:
     path = shared_dir(MESHES) / "hirth_sample_small.stl"
     part = load_mesh(path.read_bytes(), "stl")
     docs = {
         name: plan(part, PlanRequest(candidates=CandidateGenerator(count=80), backend=name))
-        for name in ("raster", "embree")
+        for name in ("raster", "packets", "embree")
     }
-    assert [d.rays.backend for d in docs.values()] == ["raster", "embree"]
-    raster, embree = docs["raster"], docs["embree"]
-    assert raster.viewpoints == embree.viewpoints
-    assert raster.rays.cast == embree.rays.cast
-    assert abs(raster.rays.valid - embree.rays.valid) <= 1e-4 * embree.rays.valid
-    assert raster.metrics.coverage == embree.metrics.coverage
-    assert raster.metrics.resolution.met_area == pytest.approx(
-        embree.metrics.resolution.met_area, abs=1e-3
-    )
+    assert [d.rays.backend for d in docs.values()] == ["raster", "packets", "embree"]
+    embree = docs["embree"]
+    for doc in (docs["raster"], docs["packets"]):
+        assert doc.viewpoints == embree.viewpoints
+        assert doc.rays.cast == embree.rays.cast
+        assert abs(doc.rays.valid - embree.rays.valid) <= 1e-4 * embree.rays.valid
+        assert doc.metrics.coverage == embree.metrics.coverage
+        assert doc.metrics.resolution.met_area == pytest.approx(
+            embree.metrics.resolution.met_area, abs=1e-3
+        )
+
+
+def triangle_soup(rng: np.random.Generator) -> tuple[Part, Viewpoints]:
+    """150 random triangles of all sizes around the origin, and a camera there."""
+    centres = rng.uniform(-300, 300, (150, 3))
+    vertices = (centres[:, None, :] + rng.normal(0, 120, (150, 3, 3))).reshape(-1, 3)
+    part = part_from_arrays(vertices, np.arange(450).reshape(150, 3))
+    return part, make_viewpoints(np.zeros((1, 3)), rng.normal(size=(1, 3)))
 
 
 @pytest.mark.parametrize("seed", range(8))
@@ -240,11 +261,8 @@ def test_random_triangle_soup_around_the_camera(seed: int) -> None:
     # triangles everywhere around a camera, many crossing its plane or behind it, of all
     # sizes and orientations: every pixel must agree with Embree but for edges and ties
     rng = np.random.default_rng(seed)
-    centres = rng.uniform(-300, 300, (150, 3))
-    vertices = (centres[:, None, :] + rng.normal(0, 120, (150, 3, 3))).reshape(-1, 3)
-    part = part_from_arrays(vertices, np.arange(450).reshape(150, 3))
+    part, views = triangle_soup(rng)
     sensor = Sensor(width_px=96, height_px=64, near_mm=1.0, far_mm=2000.0, fov_x_deg=100)
-    views = make_viewpoints(np.zeros((1, 3)), rng.normal(size=(1, 3)))
     window = (0, sensor.height_px, 0, sensor.width_px)
     a = raster_ids(part, sensor, views, 0, window)
     b = embree_ids(EmbreeBackend(part), sensor, views, 0, window)

@@ -22,119 +22,84 @@ to Embree rays (MAX_FACES_PER_PIXEL). Method and figures: docs/raytrace.md.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
-from typing import Any, Literal, TypeVar, cast
 
 import numpy as np
-from numba import njit
 
-from vpp_core.embree import EmbreeBackend
 from vpp_core.mesh import Part
+from vpp_core.packets import PacketBackend
+from vpp_core.pixels import FirstHits, Triple, inline, kernel, window_of
 from vpp_core.rays import Block, Hits, PixelHits
 from vpp_core.sensor import Sensor
-
-F = TypeVar("F", bound=Callable[..., Any])
-
-
-def _jit(inline: Literal["never", "always"]) -> Callable[[F], F]:
-    """numba's njit, typed so that the compiled functions keep their signatures."""
-    jit = njit(nogil=True, cache=True, error_model="numpy", inline=inline)
-    return cast(Callable[[F], F], jit)
-
-
-kernel = _jit("never")
-"""Compiled once per machine (cached next to this file); releases the GIL; x/0 gives inf/nan."""
-
-inline = _jit("always")
-"""The helpers of the hot loops, inlined into their callers by numba itself: a call that
-passes arrays costs reference counting, more than a small triangle's whole work."""
-
-Triple = tuple[float, float, float]
 
 Z_CLIP = 1e-6
 """Near clipping plane (mm) of the rasteriser: rays start at the camera, t > 0."""
 
 
-MAX_FACES_PER_PIXEL = 1.0
+MAX_FACES_PER_PIXEL = 0.25
 """A view whose window has fewer pixels than faces / MAX_FACES_PER_PIXEL is traced by Embree
-rays instead: drawing costs per face, tracing per ray (bench/raytrace.py: a 1 M-face part on
-6 % of the frame traces 2.2x faster by rays; at 0.5 faces per pixel drawing is 1.3x faster)."""
+packets instead (`vpp_core.packets`): drawing costs per face, tracing per ray
+(bench/raytrace.py; docs/raytrace.md)."""
 
 
 class RasterBackend:
-    """Pixel rays by rasterisation (one task per view); views with many more faces than
-    pixels (MAX_FACES_PER_PIXEL) and arbitrary rays through `EmbreeBackend`."""
+    """Pixel rays by rasterisation (one task per view); views with more faces than pixels
+    (MAX_FACES_PER_PIXEL) go to Embree packets, arbitrary rays to Embree single rays."""
 
     name = "raster"
     block_rays = 1 << 62  # a whole view per task: the rasteriser's cost is per face and view
 
-    def __init__(self, part: Part) -> None:
-        self._part = part
+    def __init__(self, part: Part, max_faces_per_pixel: float = MAX_FACES_PER_PIXEL) -> None:
+        self._part, self._max_faces_per_pixel = part, max_faces_per_pixel
         self._labels, self._vertices, self._faces = spatial_order(part.vertices, part.faces)
         self._normals = np.ascontiguousarray(part.normals, dtype=np.float64)
-        self._embree: EmbreeBackend | None = None
+        self._packets: PacketBackend | None = None
 
     @property
-    def embree(self) -> EmbreeBackend:
-        """The Embree backend over the same part, built on first use."""
-        if self._embree is None:
-            self._embree = EmbreeBackend(self._part)
-        return self._embree
+    def packets(self) -> PacketBackend:
+        """The Embree packet backend over the same part, built on first use."""
+        if self._packets is None:
+            self._packets = PacketBackend(self._part)
+        return self._packets
 
     def first_hits(
         self, origin: np.ndarray, directions: np.ndarray, t_max: float
     ) -> tuple[np.ndarray, np.ndarray]:
         """Arbitrary rays (candidate checks, diagnostics): Embree's answer."""
-        return self.embree.first_hits(origin, directions, t_max)
+        return self.packets.first_hits(origin, directions, t_max)
 
     def valid_hits(self, block: Block) -> Hits:
         """Faces of the block's valid pixel rays and their counts, by z-buffer (GIL released)."""
-        if self._by_rays(block):
-            return _count(self.embree.valid_hits(block)[0], len(self._faces))
-        return _valid_counts(*self._draw(block))
+        if self._by_packets(block):
+            return self.packets.valid_hits(block)
+        return self.draw(block).counts(self._normals)
 
     def pixel_hits(self, block: Block) -> PixelHits:
         """The block's valid pixel rays one by one, from the same z-buffer `valid_hits` counts."""
-        if self._by_rays(block):
-            return self.embree.pixel_hits(block)
-        ids, inv_z, *rest = self._draw(block)
-        pixels = np.flatnonzero(_valid_mask(ids, inv_z, *rest))
-        return PixelHits(pixels, ids.reshape(-1)[pixels], 1.0 / inv_z.reshape(-1)[pixels])
+        if self._by_packets(block):
+            return self.packets.pixel_hits(block)
+        return self.draw(block).valid(self._normals)
 
-    def _by_rays(self, block: Block) -> bool:
-        """Whether the block has fewer pixels than faces / MAX_FACES_PER_PIXEL (Embree's)."""
+    def _by_packets(self, block: Block) -> bool:
+        """Whether the block has fewer pixels than faces / max_faces_per_pixel (inf: never)."""
         pixels = (block.rows[1] - block.rows[0]) * (block.cols[1] - block.cols[0])
-        return len(self._faces) > MAX_FACES_PER_PIXEL * pixels
+        return len(self._faces) > self._max_faces_per_pixel * pixels
 
-    def _draw(self, block: Block) -> tuple[Any, ...]:
-        """The z-buffer of the block (ids, 1/depth) and the rest of the validity checks' args."""
+    def draw(self, block: Block) -> FirstHits:
+        """The z-buffer of the block: first face and 1/depth per pixel."""
         sensor = block.sensor
-        window = np.array([*block.rows, *block.cols], dtype=np.int64)
-        rotation = np.ascontiguousarray(block.rotation, dtype=np.float64)
         ids, inv_z = view_first_hits(
             self._vertices,
             self._faces,
             self._labels,
             np.asarray(block.position, dtype=np.float64),
-            rotation,
+            np.ascontiguousarray(block.rotation, dtype=np.float64),
             sensor.pixel_x,
             sensor.pixel_y,
             pixel_scale(sensor),
-            window,
+            window_of(block),
             sensor.far_mm,
         )
-        cos_min = math.cos(math.radians(sensor.max_incidence_deg))
-        return (
-            ids,
-            inv_z,
-            self._normals,
-            rotation,
-            sensor.pixel_x,
-            sensor.pixel_y,
-            window,
-            sensor.near_mm,
-            cos_min,
-        )
+        return FirstHits(block, ids, inv_z)
 
 
 def pixel_scale(sensor: Sensor) -> np.ndarray:
@@ -490,99 +455,3 @@ def _last(u: float, hi: int) -> int:
     """Last pixel index at or before coordinate u (plus the margin), at most hi (inf-safe)."""
     k = np.floor(u + SCAN_MARGIN_PX)
     return hi if not k < hi else (-(1 << 62) if k < -1e18 else int(k))
-
-
-@kernel
-def _count(ids: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
-    """Distinct ids (k,) int32 of `ids` (values in 0..n-1), sorted, and how often each occurs."""
-    counts = np.zeros(n, np.int32)
-    for f in ids:
-        counts[f] += 1
-    faces = np.flatnonzero(counts).astype(np.int32)
-    return faces, counts[faces]
-
-
-@inline
-def _is_valid(
-    f: int,
-    inv_z: float,
-    normals: np.ndarray,
-    rotation: np.ndarray,
-    row: Triple,
-    x: float,
-    y: float,
-    near: float,
-    cos2: float,
-) -> bool:
-    """SPEC §3 on one pixel ray (x, y, 1) that first hits face f at 1/depth inv_z: depth >= near
-    and |cos incidence| >= cos_min (cos2 = cos_min²); row = rotation @ (0, y, 1)."""
-    if f < 0 or inv_z * near > 1.0:
-        return False
-    dot = (
-        normals[f, 0] * (rotation[0, 0] * x + row[0])
-        + normals[f, 1] * (rotation[1, 0] * x + row[1])
-        + normals[f, 2] * (rotation[2, 0] * x + row[2])
-    )
-    return bool(dot * dot >= cos2 * (x * x + y * y + 1.0))
-
-
-@inline
-def _row_direction(rotation: np.ndarray, y: float) -> Triple:
-    """rotation @ (0, y, 1): the part of a pixel ray's world direction shared by its row."""
-    return (
-        rotation[0, 1] * y + rotation[0, 2],
-        rotation[1, 1] * y + rotation[1, 2],
-        rotation[2, 1] * y + rotation[2, 2],
-    )
-
-
-@kernel
-def _valid_counts(
-    ids: np.ndarray,
-    inv_z: np.ndarray,
-    normals: np.ndarray,
-    rotation: np.ndarray,
-    px: np.ndarray,
-    py: np.ndarray,
-    window: np.ndarray,
-    near: float,
-    cos_min: float,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Faces (k,) int32 whose pixels are valid (depth >= near, incidence) and their counts (k,)."""
-    counts = np.zeros(normals.shape[0], np.int32)
-    h, w = ids.shape
-    cos2 = cos_min * cos_min
-    for i in range(h):
-        y = float(py[window[0] + i])
-        row = _row_direction(rotation, y)
-        for j in range(w):
-            x = float(px[window[2] + j])
-            if _is_valid(ids[i, j], inv_z[i, j], normals, rotation, row, x, y, near, cos2):
-                counts[ids[i, j]] += 1
-    faces = np.flatnonzero(counts).astype(np.int32)
-    return faces, counts[faces]
-
-
-@kernel
-def _valid_mask(
-    ids: np.ndarray,
-    inv_z: np.ndarray,
-    normals: np.ndarray,
-    rotation: np.ndarray,
-    px: np.ndarray,
-    py: np.ndarray,
-    window: np.ndarray,
-    near: float,
-    cos_min: float,
-) -> np.ndarray:
-    """(h, w) bool: the window's pixels whose first hit is valid (as _valid_counts counts)."""
-    h, w = ids.shape
-    out = np.zeros((h, w), np.bool_)
-    cos2 = cos_min * cos_min
-    for i in range(h):
-        y = float(py[window[0] + i])
-        row = _row_direction(rotation, y)
-        for j in range(w):
-            x = float(px[window[2] + j])
-            out[i, j] = _is_valid(ids[i, j], inv_z[i, j], normals, rotation, row, x, y, near, cos2)
-    return out

@@ -15,7 +15,7 @@ import numpy as np
 
 from vpp_core.sensor import Sensor
 
-BackendName = Literal["raster", "embree"]
+BackendName = Literal["raster", "packets", "embree"]
 """The ray backends (vpp_core.raytrace.make_backend); the first is the default."""
 
 DEFAULT_BACKEND: BackendName = get_args(BackendName)[0]

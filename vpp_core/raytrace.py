@@ -14,6 +14,7 @@ from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import get_args
+from weakref import WeakKeyDictionary
 
 import numpy as np
 import scipy.sparse as sp
@@ -21,6 +22,7 @@ import scipy.sparse as sp
 from vpp_core.embree import EmbreeBackend
 from vpp_core.errors import VppError
 from vpp_core.mesh import Part
+from vpp_core.packets import PacketBackend
 from vpp_core.pose import Viewpoints
 from vpp_core.raster import RasterBackend
 from vpp_core.rays import DEFAULT_BACKEND, BackendName, Block, Hits, RayBackend
@@ -41,6 +43,8 @@ def make_backend(part: Part, name: str | None = None) -> RayBackend:
         return EmbreeBackend(part)
     if name == "raster":
         return RasterBackend(part)
+    if name == "packets":
+        return PacketBackend(part)
     raise VppError(f"unknown ray backend {name!r}; available: {', '.join(BACKENDS)}")
 
 
@@ -92,7 +96,7 @@ def trace_counts(
     start = time.perf_counter()
     backend = backend or make_backend(part)
     rotations = views.rotations()
-    hull = _hull_points(part.vertices) if cull else None
+    hull = part_hull(part) if cull else None
     windows = [_window(sensor, views.positions[j], rotations[j], hull) for j in range(len(views))]
     tasks = [c for j, w in enumerate(windows) for c in _chunks(j, *w, backend.block_rays)]
     empty = (np.empty(0, np.int32), np.empty(0, np.int32))
@@ -126,12 +130,23 @@ def view_blocks(
     part: Part, sensor: Sensor, views: Viewpoints, block_rays: int
 ) -> Iterator[tuple[int, Block]]:
     """(view index, Block) over each view's pixels that can reach the part, view after view."""
-    hull = _hull_points(part.vertices)
+    hull = part_hull(part)
     rotations = views.rotations()
     for j in range(len(views)):
         window = _window(sensor, views.positions[j], rotations[j], hull)
         for c in _chunks(j, *window, block_rays):
             yield j, Block(sensor, views.positions[j], rotations[j], c.rows, c.cols)
+
+
+_HULLS: WeakKeyDictionary[Part, np.ndarray] = WeakKeyDictionary()
+
+
+def part_hull(part: Part) -> np.ndarray:
+    """`_hull_points` of the part's vertices, computed once per Part object."""
+    hull = _HULLS.get(part)
+    if hull is None:
+        hull = _HULLS[part] = _hull_points(part.vertices)
+    return hull
 
 
 HULL_CELLS = 32
@@ -209,8 +224,9 @@ def _assemble(columns: list[tuple[np.ndarray, np.ndarray]], n_faces: int) -> sp.
 
 
 def _chunks(view: int, v0: int, v1: int, u0: int, u1: int, size: int) -> Iterator[_Chunk]:
-    """One view's pixel window split into runs of whole rows of about `size` rays."""
-    rows = max(1, size // max(u1 - u0, 1))
+    """One view's pixel window split into runs of whole rows of about `size` rays, in
+    multiples of 4 rows (the packet backend's tiles)."""
+    rows = max(4, size // max(u1 - u0, 1) // 4 * 4)
     for start in range(v0, v1, rows):
         yield _Chunk(view, (start, min(start + rows, v1)), (u0, u1))
 

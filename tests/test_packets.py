@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import os
 
 import numpy as np
@@ -21,7 +22,7 @@ from vpp_core.embree import EmbreeBackend, block_directions
 from vpp_core.errors import VppError
 from vpp_core.mesh import Part, load_mesh
 from vpp_core.packets import PacketBackend, library
-from vpp_core.pose import make_viewpoints
+from vpp_core.pose import Viewpoints, make_viewpoints
 from vpp_core.raster import MAX_FACES_PER_PIXEL, RasterBackend
 from vpp_core.rays import Block
 from vpp_core.raytrace import _hull_points, _window, make_backend, trace_counts
@@ -52,6 +53,16 @@ def first_ids(backend: PacketBackend, block: Block) -> np.ndarray:
     return out
 
 
+def reaches_incidence_limit(part: Part, views: Viewpoints, j: int, face: int) -> bool:
+    """Whether some point of the face is seen from view j at (or beyond) the largest
+    incidence angle, to 1e-4 in cos: on a plane |cos| = h / distance (h: the camera's
+    distance to the plane), smallest at the farthest vertex."""
+    corners = part.vertices[part.faces[face]] - views.positions[j]
+    h = abs(float(part.normals[face] @ corners[0]))
+    cos_min = math.cos(math.radians(PAPER.max_incidence_deg))
+    return h / float(np.linalg.norm(corners, axis=1).max()) <= cos_min + 1e-4
+
+
 SHARED = [(r["file"], MANIFEST_UNITS[r["units_guess"]]) for r in manifest_rows()]
 
 
@@ -75,7 +86,12 @@ def test_packets_agree_with_embree_rays_on_shared_meshes(name: str, units: str, 
     assert worst < EDGE_PX, f"a disagreement {worst:.2g} px from any edge, and no depth tie"
     counts = trace_counts(part, PAPER, views, backend=backend).counts.toarray().astype(np.int64)
     reference = trace_counts(part, PAPER, views, backend=make_backend(part, "embree")).counts
-    assert np.all(np.abs(counts - reference.toarray()) <= touched)
+    # R differs by the disagreeing pixels above, and by rays at the incidence limit: packets
+    # test it on Embree's float32 Ng, the embree backend on the part's normals in float32
+    excess = np.maximum(np.abs(counts - reference.toarray()) - touched, 0)
+    assert excess.sum() <= 2e-5 * reference.sum()
+    for f, j in zip(*np.nonzero(excess), strict=True):
+        assert reaches_incidence_limit(part, views, int(j), int(f)), (f, j, excess[f, j])
 
 
 @pytest.mark.parametrize("major", [3, 4])

@@ -29,7 +29,7 @@ import numpy as np
 
 from vpp_core.errors import VppError
 from vpp_core.mesh import Part
-from vpp_core.pixels import inline, is_valid, kernel, row_direction, window_of
+from vpp_core.pixels import Triple, inline, kernel, row_direction, window_of
 from vpp_core.rays import Block, Hits, PixelHits
 
 # enum values shared by Embree 3 and 4 (rtcore_common.h, rtcore_geometry.h, rtcore_scene.h)
@@ -46,7 +46,7 @@ _PROPERTY_VERSION = 0
 # hit Ng xyz, u, v, primID, geomID, instID[1] (Embree 4.3+ may add instPrimID after it)
 _LANES = 16
 _TNEAR, _DIR, _TIME, _TFAR, _MASK, _ID, _FLAGS = 3, 4, 7, 8, 9, 10, 11
-_PRIM, _GEOM = 17, 18
+_NG, _PRIM, _GEOM = 12, 17, 18
 _PACKET_WORDS = 21 * _LANES  # room for instID and instPrimID
 
 EMBREE3 = ("libembree3.so.3", "libembree3.3.dylib", "embree3.dll")
@@ -183,7 +183,7 @@ class PacketBackend:
         self.library = library(embree)
         self._scene = _Scene(self.library, part.vertices, part.faces)
         self._tiles, self._rays = self.library.query(True), self.library.query(False)
-        self._normals = np.ascontiguousarray(part.normals, dtype=np.float64)
+        self._n_faces = part.n_faces
 
     @property
     def embree_version(self) -> int:
@@ -220,7 +220,7 @@ class PacketBackend:
             np.asarray(block.position, dtype=np.float32),
             np.ascontiguousarray(block.rotation, dtype=np.float32),
             np.ascontiguousarray(block.rotation, dtype=np.float64),
-            self._normals,
+            self._n_faces,
             sensor.pixel_x,
             sensor.pixel_y,
             window_of(block),
@@ -279,6 +279,18 @@ def _set_ray(
     lanes[_GEOM * _LANES + lane] = _INVALID_ID
 
 
+@inline
+def _incidence_ok(packet: np.ndarray, lane: int, d: Triple, d2: float, cos2: float) -> bool:
+    """|cos| of the angle between ray direction d (|d|² = d2) and the hit's geometric normal
+    (Embree's Ng: the face's own normal, unnormalised, read from the packet rather than
+    looked up per face: no cache miss per hit on big meshes) is at least cos_min."""
+    nx = float(packet[_NG * _LANES + lane])
+    ny = float(packet[(_NG + 1) * _LANES + lane])
+    nz = float(packet[(_NG + 2) * _LANES + lane])
+    dot = nx * d[0] + ny * d[1] + nz * d[2]
+    return bool(dot * dot >= cos2 * (nx * nx + ny * ny + nz * nz) * d2)
+
+
 @kernel
 def trace_rays(
     intersect16: Any,
@@ -318,7 +330,7 @@ def trace_window(
     position: np.ndarray,
     rotation32: np.ndarray,
     rotation: np.ndarray,
-    normals: np.ndarray,
+    n_faces: int,
     px: np.ndarray,
     py: np.ndarray,
     window: np.ndarray,
@@ -334,14 +346,14 @@ def trace_window(
 
     intersect16: rtcIntersect16 of Embree `major` (3 or 4), its scene and query (16,) uint32
     (context or arguments); position (3,) float32 mm; rotation32 / rotation (3, 3) float32 /
-    float64 camera-to-world; normals (M, 3) float64; px (W,), py (H,) float32 ray x, y at
+    float64 camera-to-world; n_faces M; px (W,), py (H,) float32 ray x, y at
     z = 1; window (4,) int64 = rows v0:v1, columns u0:u1; near, far mm; cos_min of the
     largest incidence angle. Ray directions are block_directions' own float32 values,
-    x R[:, 0] + (y R[:, 1] + R[:, 2]); the checks are the rasteriser's (`pixels.is_valid`).
+    x R[:, 0] + (y R[:, 1] + R[:, 2]); depth t >= near, and incidence on Embree's Ng.
     """
     v0, v1, u0, u1 = window[0], window[1], window[2], window[3]
     h, w = max(v1 - v0, 0), max(u1 - u0, 0)
-    counts = np.zeros(normals.shape[0], np.int32)
+    counts = np.zeros(n_faces, np.int32)
     size = h * w if store else 0
     pixels, faces, depth = (
         np.empty(size, np.int64),
@@ -381,7 +393,12 @@ def trace_window(
                 f, t = lanes[_PRIM * _LANES + lane], packet[_TFAR * _LANES + lane]
                 x, y = float(px[u0 + tj + b]), float(py[v0 + ti + a])
                 r = (row[a, 0], row[a, 1], row[a, 2])
-                if not is_valid(f, 1.0 / t, normals, rotation, r, x, y, near, cos2):
+                d = (
+                    rotation[0, 0] * x + r[0],
+                    rotation[1, 0] * x + r[1],
+                    rotation[2, 0] * x + r[2],
+                )
+                if t < near or not _incidence_ok(packet, lane, d, x * x + y * y + 1.0, cos2):
                     continue
                 counts[f] += 1
                 if store:

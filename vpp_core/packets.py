@@ -21,6 +21,7 @@ import ctypes
 import glob
 import math
 import os
+import threading
 from dataclasses import dataclass
 from functools import cache, cached_property
 from typing import Any
@@ -184,6 +185,7 @@ class PacketBackend:
         self._scene = _Scene(self.library, part.vertices, part.faces)
         self._tiles, self._rays = self.library.query(True), self.library.query(False)
         self._n_faces = part.n_faces
+        self._local = threading.local()  # per thread: counts (M,) int32, zero between calls
 
     @property
     def embree_version(self) -> int:
@@ -202,9 +204,12 @@ class PacketBackend:
         )
 
     def valid_hits(self, block: Block) -> Hits:
-        """Faces of the block's valid pixel rays and their counts (GIL released)."""
+        """Faces of the block's valid pixel rays (sorted) and their counts (GIL released)."""
         faces, counts, _, _, _ = self._trace(block, store=False)
-        return faces, counts
+        # sort (face, count) pairs as one int64 key: numpy's vectorised sort, O(k log k) on
+        # the k faces hit, where a scan of all M faces per block would cost O(M)
+        keys = np.sort((faces.astype(np.int64) << 32) | counts)
+        return (keys >> 32).astype(np.int32), (keys & 0xFFFFFFFF).astype(np.int32)
 
     def pixel_hits(self, block: Block) -> PixelHits:
         """The block's valid pixel rays one by one, row-major: pixel, face and depth."""
@@ -220,7 +225,7 @@ class PacketBackend:
             np.asarray(block.position, dtype=np.float32),
             np.ascontiguousarray(block.rotation, dtype=np.float32),
             np.ascontiguousarray(block.rotation, dtype=np.float64),
-            self._n_faces,
+            self._counts(),
             sensor.pixel_x,
             sensor.pixel_y,
             window_of(block),
@@ -229,6 +234,13 @@ class PacketBackend:
             math.cos(math.radians(sensor.max_incidence_deg)),
             store,
         )
+
+    def _counts(self) -> np.ndarray:
+        """This thread's per-face counter (M,) int32, all zero (trace_window leaves it so)."""
+        counts: np.ndarray | None = getattr(self._local, "counts", None)
+        if counts is None:
+            counts = self._local.counts = np.zeros(self._n_faces, np.int32)
+        return counts
 
     def _call(self, query: np.ndarray) -> tuple[Any, int, int, np.ndarray]:
         """What the kernels need to call rtcIntersect16: function, ABI, scene, query."""
@@ -330,7 +342,7 @@ def trace_window(
     position: np.ndarray,
     rotation32: np.ndarray,
     rotation: np.ndarray,
-    n_faces: int,
+    counts: np.ndarray,
     px: np.ndarray,
     py: np.ndarray,
     window: np.ndarray,
@@ -340,27 +352,27 @@ def trace_window(
     store: bool,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The window's pixel rays traced as coherent 4 x 4 packets and checked (SPEC §3): the
-    faces hit by valid rays (k,) int32, sorted, and their ray counts (k,) int32; with `store`
+    faces hit by valid rays (k,) int32, unsorted, and their ray counts (k,) int32; with `store`
     also each valid ray, in tile order: its pixel (n,) int64 (row-major index within the
     window), face (n,) int32 and depth (n,) float32 mm (else three empty arrays).
 
     intersect16: rtcIntersect16 of Embree `major` (3 or 4), its scene and query (16,) uint32
     (context or arguments); position (3,) float32 mm; rotation32 / rotation (3, 3) float32 /
-    float64 camera-to-world; n_faces M; px (W,), py (H,) float32 ray x, y at
-    z = 1; window (4,) int64 = rows v0:v1, columns u0:u1; near, far mm; cos_min of the
+    float64 camera-to-world; counts (M,) int32 all zero (left so); px (W,), py (H,) float32
+    ray x, y at z = 1; window (4,) int64 = rows v0:v1, columns u0:u1; near, far mm; cos_min of the
     largest incidence angle. Ray directions are block_directions' own float32 values,
     x R[:, 0] + (y R[:, 1] + R[:, 2]); depth t >= near, and incidence on Embree's Ng.
     """
     v0, v1, u0, u1 = window[0], window[1], window[2], window[3]
     h, w = max(v1 - v0, 0), max(u1 - u0, 0)
-    counts = np.zeros(n_faces, np.int32)
+    touched = np.empty(min(counts.shape[0], h * w), np.int32)
     size = h * w if store else 0
     pixels, faces, depth = (
         np.empty(size, np.int64),
         np.empty(size, np.int32),
         np.empty(size, np.float32),
     )
-    n = 0
+    n = k = 0
     packet, lanes, valid = _packet()
     for lane in range(_LANES):  # the fields Embree only reads, once
         _set_ray(packet, lanes, lane, position, (0.0, 0.0, 0.0), far)
@@ -400,9 +412,14 @@ def trace_window(
                 )
                 if t < near or not _incidence_ok(packet, lane, d, x * x + y * y + 1.0, cos2):
                     continue
+                if counts[f] == 0:
+                    touched[k] = f
+                    k += 1
                 counts[f] += 1
                 if store:
                     pixels[n], faces[n], depth[n] = (ti + a) * w + tj + b, f, t
                     n += 1
-    hit = np.flatnonzero(counts).astype(np.int32)
-    return hit, counts[hit], pixels[:n], faces[:n], depth[:n]
+    hit = touched[:k]
+    hits = counts[hit]
+    counts[hit] = 0
+    return hit, hits, pixels[:n], faces[:n], depth[:n]

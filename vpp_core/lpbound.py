@@ -12,9 +12,12 @@ so columns past the incumbent's cost cannot be in a cheaper cover.
 
 from __future__ import annotations
 
+import os
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import cache
 
 import highspy
 import numpy as np
@@ -64,8 +67,23 @@ def highs_model(A: sp.csr_array, costs: np.ndarray, integer: bool = False) -> hi
 HighsOption = bool | int | float | str
 
 
+@cache
+def _banner_to_stderr() -> None:
+    """HiGHS writes its banner to the C-level stdout on a process's first Highs(): let that
+    one go to stderr, so that stdout keeps only what the caller prints (tables, JSON lines)."""
+    sys.stdout.flush()
+    saved = os.dup(1)
+    try:
+        os.dup2(2, 1)
+        highspy.Highs()  # type: ignore[no-untyped-call]
+    finally:
+        os.dup2(saved, 1)
+        os.close(saved)
+
+
 def silent_highs(options: dict[str, HighsOption], threads: int | None) -> highspy.Highs:
     """A HiGHS instance with logging off and `options` set (ValueError on a rejected one)."""
+    _banner_to_stderr()
     h = highspy.Highs()  # type: ignore[no-untyped-call]
     options = {"output_flag": False, "log_to_console": False, **options}
     if threads is not None:

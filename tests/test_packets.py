@@ -147,9 +147,9 @@ def test_raster_hands_views_with_more_faces_than_pixels_to_packets() -> None:
 
 
 def test_library_choice() -> None:
-    assert library(4).major == 4 and not library(4).coherent
-    if library().major == 3:
-        assert library().coherent
+    assert library(4).major == 4
+    if os.environ.get("VPP_REQUIRE_EMBREE3"):  # where installed, Embree 3 is the default
+        assert library().major == 3
     with pytest.raises(VppError, match="no Embree 5"):
         library(5)
 

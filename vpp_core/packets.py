@@ -41,7 +41,6 @@ _SCENE_ROBUST = 1 << 2
 _COHERENT = 1 << 0  # RTC_INTERSECT_CONTEXT_FLAG_COHERENT (3), RTC_RAY_QUERY_FLAG_COHERENT (4)
 _FEATURES_ALL = 0xFFFFFFFF
 _INVALID_ID = 0xFFFFFFFF
-_PROPERTY_VERSION = 0
 
 # float / uint lanes of RTCRayHit16: ray org xyz, tnear, dir xyz, time, tfar, mask, id, flags;
 # hit Ng xyz, u, v, primID, geomID, instID[1] (Embree 4.3+ may add instPrimID after it)
@@ -61,11 +60,6 @@ class Library:
     cdll: ctypes.CDLL
     major: int  # 3: rtcIntersect16(valid, scene, context, rayhit); 4: (valid, scene, rayhit, args)
     path: str
-
-    @property
-    def coherent(self) -> bool:
-        """Whether its packets use Embree's coherent traversal (3.x; 4.4 ignores the flag)."""
-        return self.major == 3
 
     @cached_property
     def intersect16(self) -> Any:
@@ -119,7 +113,6 @@ def _declare(lib: Library) -> Library:
     signatures: dict[str, tuple[Any, list[Any]]] = {
         "rtcNewDevice": (vp, [ctypes.c_char_p]),
         "rtcGetDeviceError": (enum, [vp]),
-        "rtcGetDeviceProperty": (ctypes.c_ssize_t, [vp, enum]),
         "rtcReleaseDevice": (None, [vp]),
         "rtcNewScene": (vp, [vp]),
         "rtcSetSceneFlags": (None, [vp, enum]),
@@ -163,7 +156,6 @@ class _Scene:
         c.rtcCommitScene(self.scene)
         if error := c.rtcGetDeviceError(self.device):
             raise VppError(f"Embree could not build the scene (error {error})")
-        self.version = int(c.rtcGetDeviceProperty(self.device, _PROPERTY_VERSION))
 
     def __del__(self) -> None:
         c = self.library.cdll
@@ -174,8 +166,8 @@ class _Scene:
 
 
 class PacketBackend:
-    """Pixel rays as coherent Embree packets of 16 (one task per view); arbitrary rays as
-    incoherent packets."""
+    """Pixel rays as coherent Embree packets of 16 (tasks of block_rays pixels); arbitrary
+    rays as incoherent packets."""
 
     name = "packets"
     block_rays = 1 << 18  # tasks of a few ms: every thread stays busy to the last view
@@ -186,11 +178,6 @@ class PacketBackend:
         self._tiles, self._rays = self.library.query(True), self.library.query(False)
         self._n_faces = part.n_faces
         self._local = threading.local()  # per thread: counts (M,) int32, zero between calls
-
-    @property
-    def embree_version(self) -> int:
-        """Embree's version as a number, e.g. 31305 for 3.13.5."""
-        return self._scene.version
 
     def first_hits(
         self, origin: np.ndarray, directions: np.ndarray, t_max: float

@@ -47,23 +47,28 @@ class FirstHits:
     def counts(self, normals: np.ndarray) -> Hits:
         """Faces (k,) int32 of the valid rays (SPEC §3) and their counts (k,) int32;
         normals (M, 3) float64 unit face normals."""
-        return _valid_counts(self.ids, self.inv_z, normals, *self._checks())
+        faces, counts, _ = self._check(normals, store=False)
+        return faces, counts
 
     def valid(self, normals: np.ndarray) -> PixelHits:
         """The valid rays one by one: pixel within the window, face and depth (mm)."""
-        pixels = np.flatnonzero(_valid_mask(self.ids, self.inv_z, normals, *self._checks()))
+        pixels = np.flatnonzero(self._check(normals, store=True)[2])
         return PixelHits(pixels, self.ids.reshape(-1)[pixels], 1.0 / self.inv_z.reshape(-1)[pixels])
 
-    def _checks(self) -> tuple[Any, ...]:
-        """rotation, px, py, window, near, cos_min: the rest of the kernels' arguments."""
+    def _check(self, normals: np.ndarray, store: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """`_check` on these hits with the block's camera and sensor."""
         sensor = self.block.sensor
-        return (
+        return _check(
+            self.ids,
+            self.inv_z,
+            normals,
             np.ascontiguousarray(self.block.rotation, dtype=np.float64),
             sensor.pixel_x,
             sensor.pixel_y,
             window_of(self.block),
             sensor.near_mm,
             math.cos(math.radians(sensor.max_incidence_deg)),
+            store,
         )
 
 
@@ -73,7 +78,7 @@ def window_of(block: Block) -> np.ndarray:
 
 
 @inline
-def is_valid(
+def _is_valid(
     f: int,
     inv_z: float,
     normals: np.ndarray,
@@ -107,7 +112,7 @@ def row_direction(rotation: np.ndarray, y: float) -> Triple:
 
 
 @kernel
-def _valid_counts(
+def _check(
     ids: np.ndarray,
     inv_z: np.ndarray,
     normals: np.ndarray,
@@ -117,42 +122,22 @@ def _valid_counts(
     window: np.ndarray,
     near: float,
     cos_min: float,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Faces (k,) int32 whose pixels are valid (depth >= near, incidence) and their counts (k,)."""
+    store: bool,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Faces (k,) int32 whose pixels are valid (depth >= near, incidence) and their counts
+    (k,); with `store` also the (h, w) bool mask of the valid pixels, else an empty one."""
     counts = np.zeros(normals.shape[0], np.int32)
     h, w = ids.shape
+    mask = np.zeros((h, w) if store else (0, 0), np.bool_)
     cos2 = cos_min * cos_min
     for i in range(h):
         y = float(py[window[0] + i])
         row = row_direction(rotation, y)
         for j in range(w):
             x = float(px[window[2] + j])
-            if is_valid(ids[i, j], inv_z[i, j], normals, rotation, row, x, y, near, cos2):
+            if _is_valid(ids[i, j], inv_z[i, j], normals, rotation, row, x, y, near, cos2):
                 counts[ids[i, j]] += 1
+                if store:
+                    mask[i, j] = True
     faces = np.flatnonzero(counts).astype(np.int32)
-    return faces, counts[faces]
-
-
-@kernel
-def _valid_mask(
-    ids: np.ndarray,
-    inv_z: np.ndarray,
-    normals: np.ndarray,
-    rotation: np.ndarray,
-    px: np.ndarray,
-    py: np.ndarray,
-    window: np.ndarray,
-    near: float,
-    cos_min: float,
-) -> np.ndarray:
-    """(h, w) bool: the window's pixels whose first hit is valid (as _valid_counts counts)."""
-    h, w = ids.shape
-    out = np.zeros((h, w), np.bool_)
-    cos2 = cos_min * cos_min
-    for i in range(h):
-        y = float(py[window[0] + i])
-        row = row_direction(rotation, y)
-        for j in range(w):
-            x = float(px[window[2] + j])
-            out[i, j] = is_valid(ids[i, j], inv_z[i, j], normals, rotation, row, x, y, near, cos2)
-    return out
+    return faces, counts[faces], mask

@@ -15,8 +15,8 @@ the face whose projected triangle contains the pixel centre and is nearest there
 
 Arithmetic is float64 on Embree's own float32 pixel rays, so the two agree but for pixel
 centres on edges and coplanar overlapping faces (tests/test_raster.py). Faces are drawn in a
-Morton order of their centroids (memory locality); a view with more faces than pixels goes
-to Embree rays (MAX_FACES_PER_PIXEL). Method and figures: docs/raytrace.md.
+Morton order of their centroids (memory locality); a view with more than one face per 4
+pixels goes to Embree packets (MAX_FACES_PER_PIXEL). Method and figures: docs/raytrace.md.
 """
 
 from __future__ import annotations
@@ -42,8 +42,8 @@ packets instead (`vpp_core.packets`): drawing costs per face, tracing per ray
 
 
 class RasterBackend:
-    """Pixel rays by rasterisation (one task per view); views with more faces than pixels
-    (MAX_FACES_PER_PIXEL) go to Embree packets, arbitrary rays to Embree single rays."""
+    """Pixel rays by rasterisation (one task per view); views with faces dense on the image
+    (MAX_FACES_PER_PIXEL) and arbitrary rays go to `PacketBackend`."""
 
     name = "raster"
     block_rays = 1 << 62  # a whole view per task: the rasteriser's cost is per face and view

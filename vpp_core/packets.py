@@ -29,8 +29,9 @@ from typing import Any
 import numpy as np
 
 from vpp_core.errors import VppError
+from vpp_core.jit import inline, kernel
 from vpp_core.mesh import Part
-from vpp_core.pixels import Triple, inline, kernel, row_direction, window_of
+from vpp_core.pixels import Triple, row_direction, window_of
 from vpp_core.rays import Block, Hits, PixelHits
 
 # enum values shared by Embree 3 and 4 (rtcore_common.h, rtcore_geometry.h, rtcore_scene.h)

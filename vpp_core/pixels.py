@@ -1,4 +1,4 @@
-"""SPEC §3 on a window of pixel rays whose first hits are known, and numba's settings.
+"""SPEC §3 on a window of pixel rays whose first hits are known.
 
 The pixel backends (`vpp_core.raster`, `vpp_core.packets`) find the first face hit through
 each pixel centre of a window and its depth; the checks and the counting per face are the
@@ -8,30 +8,12 @@ same for both, and compiled here.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Literal, TypeVar, cast
 
 import numpy as np
-from numba import njit
 
+from vpp_core.jit import inline, kernel
 from vpp_core.rays import Block, Hits, PixelHits
-
-F = TypeVar("F", bound=Callable[..., Any])
-
-
-def _jit(inline: Literal["never", "always"]) -> Callable[[F], F]:
-    """numba's njit, typed so that the compiled functions keep their signatures."""
-    jit = njit(nogil=True, cache=True, error_model="numpy", inline=inline)
-    return cast(Callable[[F], F], jit)
-
-
-kernel = _jit("never")
-"""Compiled once per machine (cached next to this file); releases the GIL; x/0 gives inf/nan."""
-
-inline = _jit("always")
-"""The helpers of the hot loops, inlined into their callers by numba itself: a call that
-passes arrays costs reference counting, more than a small triangle's whole work."""
 
 Triple = tuple[float, float, float]
 

@@ -25,9 +25,10 @@ import math
 
 import numpy as np
 
+from vpp_core.jit import inline, kernel
 from vpp_core.mesh import Part
 from vpp_core.packets import PacketBackend
-from vpp_core.pixels import FirstHits, Triple, inline, kernel, window_of
+from vpp_core.pixels import FirstHits, Triple, window_of
 from vpp_core.rays import Block, Hits, PixelHits
 from vpp_core.sensor import Sensor
 

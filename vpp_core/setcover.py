@@ -4,7 +4,8 @@ A is (M rows × N columns); rows are faces, columns candidate viewpoints. A is e
 (visibility, the classical set cover) or real partial coverage S (several partial columns
 may add up to cover a row). `solve_cover(method="greedy")` is greedy + redundancy removal;
 `method="milp"` reduces the model, then spends its time on the LP bound, a quick exact
-HiGHS try, local search, HiGHS on a core and HiGHS on the reduced-cost-fixed model
+HiGHS try, the Lagrangian heuristic, local search, HiGHS on a core and HiGHS on the
+reduced-cost-fixed model
 (docs/setcover.md). Tolerances are those of `vpp_core.cover`.
 """
 
@@ -18,6 +19,7 @@ import highspy
 import numpy as np
 import scipy.sparse as sp
 
+from vpp_core import lagrange
 from vpp_core.cover import (
     COVER_TOL,
     SparseLike,
@@ -57,8 +59,10 @@ LP_SHARE = 0.4
 """At most this share of the time limit goes to the LP bound."""
 QUICK_SHARE = 0.1
 """At most this share of the time left after the LP goes to a first exact HiGHS run."""
+LAGRANGE_SHARE = 0.4
+"""At most this share of the time left after the LP goes to the Lagrangian heuristic."""
 SEARCH_SHARE = 0.3
-"""At most this share of the time left after the LP goes to local search."""
+"""At most this share of the time left then goes to local search."""
 CORE_SHARE = 0.25
 """At most this share of the time left then goes to HiGHS on the core (least reduced costs)."""
 CORE_PER_ROW = 5
@@ -164,16 +168,6 @@ def closes_gap(bound: float, objective: float, integral: bool) -> tuple[float, b
     return bound, objective - bound <= _REAL_GAP_TOL * max(1.0, objective)
 
 
-def _core(A: sp.csr_array, reduced: np.ndarray, per_row: int) -> np.ndarray:
-    """(N,) bool: the `per_row` columns of least reduced cost (N,) of every row of A (M, N)."""
-    rows = np.repeat(np.arange(A.shape[0]), np.diff(A.indptr))
-    order = np.lexsort((reduced[A.indices], rows))
-    rank = np.arange(order.size) - A.indptr[rows[order]]
-    core = np.zeros(A.shape[1], dtype=bool)
-    core[A.indices[order[rank < per_row]]] = True
-    return core
-
-
 @dataclass
 class _Search:
     """The reduced model being solved and the best cover and bound found so far."""
@@ -200,7 +194,9 @@ class _Search:
         return closes_gap(self.bound, self.objective, self.integral)[1]
 
     def offer(self, cover: np.ndarray | None) -> None:
-        if cover is not None and self.costs[cover].sum() < self.objective:
+        if cover is None or self.costs[cover].sum() >= self.objective:
+            return
+        if is_cover(self.A, cover):  # a cover from any step is checked before it counts
             self.best, self.found_at = cover, time.perf_counter()
 
     def mip(self, keep: np.ndarray, time_limit: float, gap: float) -> _MipOutcome:
@@ -217,7 +213,8 @@ class _Search:
 
 
 def _search(S: _Search, mip_rel_gap: float) -> None:
-    """LP bound, a quick exact try, local search, HiGHS on a core, then HiGHS on what can win."""
+    """LP bound, a quick exact try, the Lagrangian heuristic, local search, HiGHS on a core,
+    then HiGHS on what can win."""
     lp = lp_bound(S.A, S.costs, S.left(LP_SHARE), S.threads)
     S.bound = max(S.bound, lp.bound)
     if S.closed():
@@ -229,11 +226,15 @@ def _search(S: _Search, mip_rel_gap: float) -> None:
     _exact(S, lp, S.left(QUICK_SHARE), mip_rel_gap)
     if S.closed() or S.mip_status == highspy.HighsModelStatus.kOptimal:
         return
+    end = time.perf_counter() + S.left(LAGRANGE_SHARE)
+    S.offer(lagrange.search(S.A, S.costs, S.best, end, duals=lp.duals, target=target).selected)
+    if S.closed():
+        return
     end = time.perf_counter() + S.left(SEARCH_SHARE)
     S.offer(improve(S.A, S.costs, S.best, end, target=target))
     if S.closed():
         return
-    core = _core(S.A, lp.reduced, CORE_PER_ROW)
+    core = lagrange.core(S.A, lp.reduced, CORE_PER_ROW)
     core[S.best] = True
     if core.sum() < S.A.shape[1]:
         S.mip(core, S.left(CORE_SHARE), mip_rel_gap)

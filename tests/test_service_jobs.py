@@ -128,8 +128,9 @@ def test_a_failed_chunk_fails_the_plan_with_its_reason(api, start_workers, monke
     monkeypatch.setenv("VPP_CHUNK_TIMEOUT_S", "1")
     monkeypatch.setenv("VPP_CHUNK_VIEWS", "300")
     mesh = upload_sample(api)
-    big = {"width_px": 3840, "height_px": 2400}  # 300 views of 9 Mpx: well over 1 s of tracing
-    job = submit(api, {"mesh_id": mesh, "sensor": big, "candidates": {"count": 600, "seed": 2}})
+    big = {"width_px": 3840, "height_px": 2400}  # 300 views of 9 Mpx, one Embree ray per pixel:
+    body = {"mesh_id": mesh, "sensor": big, "backend": "embree"}  # well over 1 s of tracing
+    job = submit(api, body | {"candidates": {"count": 600, "seed": 2}})
     start_workers(2)
     done = wait(api, job)
     assert done["status"] == "failed", done

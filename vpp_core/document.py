@@ -82,8 +82,9 @@ class PlanRequest(_Strict):
     backend: BackendName = Field(
         DEFAULT_BACKEND,
         description="ray backend that computes R: `raster` (z-buffer of face ids at pixel "
-        "centres, the fastest) or `embree` (one Embree ray per pixel); they agree but for "
-        "pixel centres on triangle edges",
+        "centres, the fastest; views with more faces than pixels go to `packets`), `packets` "
+        "(Embree packets of 4 × 4 pixel rays) or `embree` (one Embree ray per pixel); they "
+        "agree but for pixel centres on triangle edges",
     )
 
 

@@ -296,8 +296,8 @@ def search(
     """A cover of A (M, N) costing <= the cover `selected` (K,), and a Lagrangian bound.
 
     Runs until time.perf_counter() passes `deadline`, the cost reaches `target` or IDLE_CYCLES
-    refinement cycles find nothing cheaper; `duals`
-    (M,) >= 0 (e.g. the LP's) start the multipliers.
+    refinement cycles find nothing cheaper; `duals` (M,) >= 0 (e.g. the LP's) start the
+    multipliers of the bound.
     """
     M = Model.of(A, costs)
     integral = bool(np.all(M.costs == np.floor(M.costs)))
@@ -306,11 +306,11 @@ def search(
     best_u = u.copy()
     ones, free = np.ones(M.m), np.ones(M.n, dtype=np.bool_)
     _subgradient(M.cp, M.ci, M.cd, M.costs, ones, free, u, best_u, S.ub, MAX_ITERATIONS, 2.0)
-    bound = lagrangian(A, M.costs, best_u)[0]
+    bound, reduced = lagrangian(A, M.costs, best_u)
     if duals is not None:
         bound = max(bound, lagrangian(A, M.costs, np.maximum(duals, 0.0))[0])
     start = _initial(A, M.costs)
-    cheap = core(A, lagrangian(A, M.costs, best_u)[1], CORE_PER_ROW)
+    cheap = core(A, reduced, CORE_PER_ROW)
     share, fixed = REFINE_START, np.zeros(0, dtype=np.int64)
     idle, cycle_start = 0, S.ub
     while S.running() and idle < IDLE_CYCLES:

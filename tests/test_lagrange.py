@@ -34,9 +34,10 @@ def run_subgradient(A: sp.csr_array, costs: np.ndarray, ub: float) -> tuple[floa
     u = lagrange._initial(A, costs)
     best = u.copy()
     free = np.ones(M.n, dtype=np.bool_)
-    value, _ = lagrange._subgradient(
-        M.cp, M.ci, M.cd, M.costs, np.ones(M.m), free, u, best, ub, lagrange.MAX_ITERATIONS, 2.0
-    )
+    value, _, _ = lagrange._subgradient(
+        M.cp, M.ci, M.cd, M.costs, np.ones(M.m), free, u, best, ub, lagrange.MAX_ITERATIONS, 2.0,
+        -np.inf,
+    )  # fmt: skip
     return value, best
 
 

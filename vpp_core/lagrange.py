@@ -31,6 +31,8 @@ MIN_STEP = 0.005
 """A subgradient run stops when its step factor falls below this."""
 MAX_ITERATIONS = 5000
 """At most this many subgradient iterations per run."""
+CHUNK = 100
+"""Subgradient iterations between two looks at the clock."""
 HEURISTIC_ITERATIONS = 100
 """Subgradient iterations of a heuristic phase; each runs the Lagrangian greedy."""
 HEURISTIC_STEP = 0.1
@@ -97,17 +99,18 @@ class LagrangeResult:
 @kernel
 def _subgradient(
     cp: Arr, ci: Arr, cd: Arr, costs: Arr, r: Arr, free: Arr, u: Arr, best_u: Arr,
-    ub: float, iterations: int, lam: float,
-) -> tuple[float, float]:  # fmt: skip
+    ub: float, iterations: int, lam: float, best: float,
+) -> tuple[float, float, bool]:  # fmt: skip
     """Subgradient steps on u (M,) for demands r (M,), free columns (N,) bool, target ub.
 
     Step u += lam (ub - L) s / |s|², s the projected subgradient; lam halves after PATIENCE
     iterations without a better L and the run stops below MIN_STEP. u ends at the last
-    iterate, best_u gets the best; returns (best L, last step factor).
+    iterate, best_u gets the best iterate if its L beats `best`; returns (best L, last step
+    factor, whether the run stopped before `iterations`).
     """
     m, n = r.size, costs.size
     s = np.empty(m)
-    best, since = -np.inf, 0
+    since = 0
     for i in range(m):
         if r[i] <= 0.0:
             u[i] = 0.0
@@ -133,7 +136,7 @@ def _subgradient(
         elif since >= PATIENCE:
             lam, since = 0.5 * lam, 0
             if lam < MIN_STEP:
-                break
+                return best, lam, True
         norm = 0.0
         for i in range(m):
             if r[i] <= 0.0 or (u[i] <= 0.0 and s[i] < 0.0):
@@ -141,11 +144,11 @@ def _subgradient(
             norm += s[i] * s[i]
         gap = ub - value
         if norm == 0.0 or gap <= 1e-9:
-            break
+            return best, lam, True
         step = lam * gap / norm
         for i in range(m):
             u[i] = max(0.0, u[i] + step * s[i])
-    return best, lam
+    return best, lam, False
 
 
 @kernel
@@ -305,7 +308,7 @@ def search(
     u = _initial(A, M.costs) if duals is None else np.maximum(duals, 0.0)
     best_u = u.copy()
     ones, free = np.ones(M.m), np.ones(M.n, dtype=np.bool_)
-    _subgradient(M.cp, M.ci, M.cd, M.costs, ones, free, u, best_u, S.ub, MAX_ITERATIONS, 2.0)
+    _ascend(S, ones, free, u, best_u, S.ub, 2.0)
     bound, reduced = lagrangian(A, M.costs, best_u)
     if duals is not None:
         bound = max(bound, lagrangian(A, M.costs, np.maximum(duals, 0.0))[0])
@@ -335,6 +338,21 @@ def core(A: sp.csr_array, reduced: np.ndarray, per_row: int) -> np.ndarray:
     core = np.zeros(A.shape[1], dtype=bool)
     core[A.indices[order[rank < per_row]]] = True
     return core
+
+
+def _ascend(
+    S: _Search, r: np.ndarray, free: np.ndarray, u: np.ndarray, best_u: np.ndarray, ub: float,
+    lam: float,
+) -> float:  # fmt: skip
+    """`_subgradient` for at most MAX_ITERATIONS, in chunks that keep to the deadline; best L."""
+    M, best = S.model, -np.inf
+    for _ in range(0, MAX_ITERATIONS, CHUNK):
+        best, lam, stopped = _subgradient(
+            M.cp, M.ci, M.cd, M.costs, r, free, u, best_u, ub, CHUNK, lam, best
+        )
+        if stopped or time.perf_counter() >= S.deadline:
+            break
+    return best
 
 
 def _initial(A: sp.csr_array, costs: np.ndarray) -> np.ndarray:
@@ -370,9 +388,7 @@ def _three_phase(S: _Search, fixed: np.ndarray, u: np.ndarray, columns: np.ndarr
         free[fixed] = False
         paid = float(M.costs[fixed].sum())
         best_u = u.copy()
-        low, _ = _subgradient(
-            M.cp, M.ci, M.cd, M.costs, r, free, u, best_u, S.ub - paid, MAX_ITERATIONS, START_STEP
-        )
+        low = _ascend(S, r, free, u, best_u, S.ub - paid, START_STEP)
         if not S.can_improve(paid + low):
             return
         _heuristic(S, fixed, r, free, best_u, S.ub - paid, HEURISTIC_STEP)
@@ -425,7 +441,7 @@ def _heuristic(
         picks = S.greedy(r, free, u)
         if picks is not None:
             S.offer(np.append(fixed, picks))
-        _subgradient(M.cp, M.ci, M.cd, M.costs, r, free, u, scratch, ub, 1, lam)
+        _subgradient(M.cp, M.ci, M.cd, M.costs, r, free, u, scratch, ub, 1, lam, -np.inf)
 
 
 def _refine(S: _Search, u: np.ndarray, share: float) -> np.ndarray:

@@ -104,7 +104,7 @@ def _trivial_bound(A: sp.csr_array, costs: np.ndarray) -> float:
 def _highs(time_limit: float, mip_rel_gap: float, threads: int | None) -> highspy.Highs:
     """A silent HiGHS instance with the MIP options set."""
     options: dict[str, HighsOption] = {
-        "time_limit": float(time_limit),
+        "time_limit": max(float(time_limit), 0.01),
         "mip_rel_gap": float(mip_rel_gap),
         "primal_feasibility_tolerance": _HIGHS_FEAS_TOL,
         "mip_feasibility_tolerance": _HIGHS_FEAS_TOL,
@@ -236,7 +236,7 @@ def _search(S: _Search, mip_rel_gap: float) -> None:
         return
     core = lagrange.core(S.A, lp.reduced, CORE_PER_ROW)
     core[S.best] = True
-    if core.sum() < S.A.shape[1]:
+    if core.sum() < S.A.shape[1] and S.left() > 0:
         S.mip(core, S.left(CORE_SHARE), mip_rel_gap)
     if not S.closed() and S.left() > 0:
         _exact(S, lp, S.left(), mip_rel_gap)

@@ -4,10 +4,10 @@ After Caprara, Fischetti and Toth (Oper. Res. 47, 1999). Subgradient steps on mu
 u >= 0 raise the Lagrangian bound L(u) = Σ_i r_i u_i + Σ_j min(0, c_j - (Aᵀu)_j); near good u
 a greedy on Lagrangian scores builds covers. Column fixing then fixes the columns of negative
 reduced cost that share no row and the first picks of that greedy, and solves what is left
-the same way; refinement fixes the part of the best cover
-that the multipliers find cheapest and starts again from CFT's first multipliers; starting
-over, rather than from the best ones, is what finds the best-known covers of OR-Library's
-NRE/NRF classes (docs/setcover.md). Everything works on residual demands r (M,) in [0, 1],
+the same way; refinement fixes the part of the best cover that the multipliers find
+cheapest and starts again from CFT's first multipliers; starting over, rather than from the
+best ones, is what finds the best-known covers of OR-Library's NRE/NRF classes
+(docs/setcover.md). Everything works on residual demands r (M,) in [0, 1],
 so real coefficients (partial coverage) work as 0/1 ones do.
 """
 
@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from vpp_core.cover import BUILD_TOL
+from vpp_core.cover import BUILD_TOL, coverage
 from vpp_core.jit import kernel
 from vpp_core.lpbound import lagrangian
 
@@ -53,7 +53,7 @@ REFINE_START = 0.3
 
 @dataclass(frozen=True)
 class Model:
-    """A (M, N) as CSC and CSR arrays for the kernels, with the costs (N,)."""
+    """A (M, N) as CSC and CSR arrays for the kernels, with the costs (N,) and A itself."""
 
     cp: np.ndarray
     ci: np.ndarray
@@ -62,7 +62,7 @@ class Model:
     ri: np.ndarray
     rd: np.ndarray
     costs: np.ndarray
-    cc: np.ndarray  # (nnz,) column of each CSC entry
+    A: sp.csr_array
 
     @classmethod
     def of(cls, A: sp.csr_array, costs: np.ndarray) -> Model:
@@ -72,7 +72,7 @@ class Model:
         return cls(
             csc.indptr.astype(i64), csc.indices.astype(i64), csc.data, A.indptr.astype(i64),
             A.indices.astype(i64), A.data, np.asarray(costs, dtype=np.float64),
-            np.repeat(np.arange(A.shape[1], dtype=i64), np.diff(csc.indptr)),
+            A,
         )  # fmt: skip
 
     @property
@@ -305,14 +305,14 @@ def search(
     M = Model.of(A, costs)
     integral = bool(np.all(M.costs == np.floor(M.costs)))
     S = _Search(M, np.sort(selected), integral, target, deadline, np.random.default_rng(seed))
-    u = _initial(A, M.costs) if duals is None else np.maximum(duals, 0.0)
+    start = _initial(A, M.costs)
+    u = start.copy() if duals is None else np.maximum(duals, 0.0)
     best_u = u.copy()
     ones, free = np.ones(M.m), np.ones(M.n, dtype=np.bool_)
     _ascend(S, ones, free, u, best_u, S.ub, 2.0)
     bound, reduced = lagrangian(A, M.costs, best_u)
     if duals is not None:
         bound = max(bound, lagrangian(A, M.costs, np.maximum(duals, 0.0))[0])
-    start = _initial(A, M.costs)
     cheap = core(A, reduced, CORE_PER_ROW)
     share, fixed = REFINE_START, np.zeros(0, dtype=np.int64)
     idle, cycle_start = 0, S.ub
@@ -367,10 +367,7 @@ def _initial(A: sp.csr_array, costs: np.ndarray) -> np.ndarray:
 def _residual(M: Model, fixed: np.ndarray, demand: np.ndarray | None = None) -> np.ndarray:
     """(M,) demand left of `demand` (M,) (default all 1) once the columns `fixed` (F,) are in;
     0 where met."""
-    r = np.ones(M.m) if demand is None else demand.copy()
-    for j in fixed:
-        s = slice(M.cp[j], M.cp[j + 1])
-        r[M.ci[s]] -= M.cd[s]
+    r = (1.0 if demand is None else demand) - coverage(M.A, fixed)
     r[r <= BUILD_TOL] = 0.0
     return np.maximum(r, 0.0)
 
@@ -403,7 +400,7 @@ def _to_fix(S: _Search, r: np.ndarray, free: np.ndarray, u: np.ndarray) -> np.nd
     """(F,) columns to fix next: those of reduced cost < -0.001 at u (M,) that share no row
     with another, then max(1, m/200) picks of the Lagrangian greedy (CFT); None if stuck."""
     M = S.model
-    reduced = M.costs - np.bincount(M.cc, weights=M.cd * u[M.ci], minlength=M.n)
+    reduced = lagrangian(M.A, M.costs, u)[1]
     taken = np.zeros(M.m, dtype=np.bool_)
     sure = []
     for j in np.flatnonzero(free & (reduced < -1e-3)):
@@ -448,10 +445,7 @@ def _refine(S: _Search, u: np.ndarray, share: float) -> np.ndarray:
     """(F,) the best cover's columns the multipliers u (M,) find cheapest, covering `share`
     of the rows: least δ_j = max(0, c̃_j) + Σ_i u_i a_ij (cov_i - 1) / cov_i first (CFT)."""
     M, best = S.model, S.best
-    cov = np.zeros(M.m)
-    for j in best:
-        s = slice(M.cp[j], M.cp[j + 1])
-        cov[M.ci[s]] += M.cd[s]
+    cov = coverage(M.A, best)
     delta = np.empty(best.size)
     for q, j in enumerate(best):
         s = slice(M.cp[j], M.cp[j + 1])

@@ -5,8 +5,7 @@ A is (M rows × N columns); rows are faces, columns candidate viewpoints. A is e
 may add up to cover a row). `solve_cover(method="greedy")` is greedy + redundancy removal;
 `method="milp"` reduces the model, then spends its time on the LP bound, a quick exact
 HiGHS try, the Lagrangian heuristic, local search, HiGHS on a core and HiGHS on the
-reduced-cost-fixed model
-(docs/setcover.md). Tolerances are those of `vpp_core.cover`.
+reduced-cost-fixed model (docs/setcover.md). Tolerances are those of `vpp_core.cover`.
 """
 
 from __future__ import annotations

@@ -18,7 +18,8 @@ fx·fy·cos θ / (z² cos φ), δ = sqrt of that; then S and V as in SPEC §3.
 Candidates: `default` (the product's generator), or targets taken from the grid points in
 a geometric order (a hash of ray index and layer), thinned greedily (`grid`) or one per cell
 of a spacing-sized voxel grid (`grid-cells`), then placed as the product places them.
---shared: the CAD mesh's candidates are used on the remesh too.
+--shared: the CAD mesh's candidates are used on the remesh too. --seed picks the candidates;
+the rows always use seed 0.
 One JSON line per (tessellation, formulation, fraction).
 """
 
@@ -182,9 +183,9 @@ def run(part: Part, label: str, views: Viewpoints, args: argparse.Namespace) -> 
     sensor, emb = Sensor(), EmbreeBackend(part)
     t0 = time.perf_counter()
     if args.rows == "grid":
-        points = grid_points(part, emb, args.samples, args.seed)
+        points = grid_points(part, emb, args.samples, 0)
     else:
-        points = random_points(part, args.samples, args.seed)
+        points = random_points(part, args.samples, 0)
     m = models(point_densities(part, sensor, views, points, emb), 0.18)
     weights = points[2][m["seen"]]
     rows_s = time.perf_counter() - t0

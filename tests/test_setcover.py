@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import itertools
 import math
 from pathlib import Path
 
@@ -325,6 +326,41 @@ def weak_lp(A: sp.csr_array, costs: np.ndarray, *args: object) -> LpBound:
     """An LP bound of zero (multipliers all zero), so only the faked HiGHS can close the gap."""
     z = np.zeros(A.shape[0])
     return LpBound(0.0, z, costs.copy(), np.zeros(A.shape[1]), "fake", 0.0)
+
+
+def random_cover_model(seed: int) -> tuple[sp.csr_array, np.ndarray]:
+    """A small random cover model (0/1 for even seeds, real coefficients for odd), unit costs."""
+    rng = np.random.default_rng(seed)
+    m, n = rng.integers(5, 40), rng.integers(5, 30)
+    A = (rng.random((m, n)) < rng.uniform(0.1, 0.5)).astype(float)
+    if seed % 2:
+        A *= rng.choice([0.25, 0.5, 0.6, 1.0], size=(m, n))
+    A[A.sum(axis=1) < 1, rng.integers(0, n)] = 1.0
+    return sp.csr_array(A), np.ones(n)
+
+
+def fewest_columns(A: np.ndarray) -> int:
+    """The least number of columns of dense A (m, n) whose sums reach 1 in every row."""
+    for k in range(1, A.shape[1] + 1):
+        combos = np.array(list(itertools.combinations(range(A.shape[1]), k)))
+        if (A[:, combos].sum(axis=2) >= 1 - 1e-9).all(axis=0).any():
+            return k
+    raise AssertionError("not coverable")
+
+
+@pytest.mark.parametrize("seed", [60, 108, 141, 147])
+def test_highs_answer_that_contradicts_itself_is_not_trusted(seed: int) -> None:
+    # Warm-started from the greedy cover, HiGHS 1.16 says "optimal" on these models at an
+    # objective below the cost of the solution it returns (the greedy start, or worse than
+    # the optimum); the driver then saw a false gap ("gap_limit") or kept a worse cover.
+    A, costs = random_cover_model(seed)
+    best = fewest_columns(A.toarray())
+    out = setcover._run_highs(A, costs, greedy_cover(A, costs), 5.0, 0.0, None)
+    assert out.selected is not None and is_cover(A, out.selected)
+    assert costs[out.selected].sum() == best
+    assert best - 1e-6 <= out.dual_bound <= best + 1e-9
+    result = solve_cover(A, costs, time_limit=5)
+    assert (result.status, result.objective, result.bound) == ("optimal", best, best)
 
 
 def test_infeasible_highs_solution_is_repaired_and_not_optimal(

@@ -328,15 +328,16 @@ def weak_lp(A: sp.csr_array, costs: np.ndarray, *args: object) -> LpBound:
     return LpBound(0.0, z, costs.copy(), np.zeros(A.shape[1]), "fake", 0.0)
 
 
-def random_cover_model(seed: int) -> tuple[sp.csr_array, np.ndarray]:
-    """A small random cover model (0/1 for even seeds, real coefficients for odd), unit costs."""
+def random_cover_model(seed: int) -> tuple[sp.csr_array, np.ndarray, np.ndarray]:
+    """A small random cover model (0/1 for even seeds, real coefficients for odd), unit costs,
+    and row weights in [0.1, 1) for partial covers."""
     rng = np.random.default_rng(seed)
     m, n = rng.integers(5, 40), rng.integers(5, 30)
     A = (rng.random((m, n)) < rng.uniform(0.1, 0.5)).astype(float)
     if seed % 2:
         A *= rng.choice([0.25, 0.5, 0.6, 1.0], size=(m, n))
     A[A.sum(axis=1) < 1, rng.integers(0, n)] = 1.0
-    return sp.csr_array(A), np.ones(n)
+    return sp.csr_array(A), np.ones(n), rng.uniform(0.1, 1.0, m)
 
 
 def fewest_columns(A: np.ndarray) -> int:
@@ -353,7 +354,7 @@ def test_highs_answer_that_contradicts_itself_is_not_trusted(seed: int) -> None:
     # Warm-started from the greedy cover, HiGHS 1.16 says "optimal" on these models at an
     # objective below the cost of the solution it returns (the greedy start, or worse than
     # the optimum); the driver then saw a false gap ("gap_limit") or kept a worse cover.
-    A, costs = random_cover_model(seed)
+    A, costs, _ = random_cover_model(seed)
     best = fewest_columns(A.toarray())
     out = setcover._run_highs(A, costs, greedy_cover(A, costs), 5.0, 0.0, None)
     assert out.selected is not None and is_cover(A, out.selected)

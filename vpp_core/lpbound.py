@@ -26,6 +26,11 @@ import scipy.sparse as sp
 IPM_NNZ = 1_000_000
 """Models with more nonzeros go to HiGHS's interior point method (no crossover)."""
 _FIX_TOL = 1e-6  # relative slack kept when fixing columns by reduced cost
+MIP_FEAS_TOL = 1e-9
+"""HiGHS's primal and MIP feasibility tolerances for the covering MIPs."""
+_HIGHS_FEASIBLE = 2  # HiGHS kSolutionStatusFeasible
+_OBJ_TOL = 1e-6
+"""Relative slack between HiGHS's reported objective and its solution's cost."""
 
 
 @dataclass(frozen=True)
@@ -103,6 +108,63 @@ def run_highs(
         highspy.Highs.resetGlobalScheduler(True)  # scheduler was started with another count
         prepare()
         h.run()
+
+
+def solve_mip(
+    model: highspy.HighsLp,
+    start: np.ndarray | None,
+    time_limit: float,
+    mip_rel_gap: float,
+    threads: int | None,
+) -> highspy.Highs | None:
+    """HiGHS on the MIP `model`, warm-started at column values `start` (N,) when given; the
+    solved instance, or None when its answer contradicts itself.
+
+    HiGHS 1.16 can answer a warm-started run with "optimal" at an objective that the solution
+    it hands back does not have (it returns the start instead). Such an answer is dropped and
+    HiGHS runs again, cold, in the time that is left.
+    """
+    deadline = time.perf_counter() + time_limit
+    h = _mip_highs(model, time_limit, mip_rel_gap, threads)
+    if start is not None:
+        warm = highspy.HighsSolution()
+        warm.col_value = np.asarray(start, dtype=np.float64).tolist()
+        warm.value_valid = True
+        run_highs(h, threads, lambda: h.setSolution(warm))
+        if not _contradicts(h, model):
+            return h
+        h = _mip_highs(model, deadline - time.perf_counter(), mip_rel_gap, threads)
+    run_highs(h, threads)
+    return None if _contradicts(h, model) else h
+
+
+def has_solution(h: highspy.Highs) -> bool:
+    """HiGHS holds a feasible primal solution."""
+    return bool(h.getInfo().primal_solution_status == _HIGHS_FEASIBLE)
+
+
+def _mip_highs(
+    model: highspy.HighsLp, time_limit: float, mip_rel_gap: float, threads: int | None
+) -> highspy.Highs:
+    """A silent HiGHS instance holding `model`, with the MIP options set."""
+    options: dict[str, HighsOption] = {
+        "time_limit": max(float(time_limit), 0.01),
+        "mip_rel_gap": float(mip_rel_gap),
+        "primal_feasibility_tolerance": MIP_FEAS_TOL,
+        "mip_feasibility_tolerance": MIP_FEAS_TOL,
+    }
+    h = silent_highs(options, threads)
+    h.passModel(model)
+    return h
+
+
+def _contradicts(h: highspy.Highs, model: highspy.HighsLp) -> bool:
+    """HiGHS says "optimal", but the solution it returns costs more than its objective."""
+    if h.getModelStatus() != highspy.HighsModelStatus.kOptimal or not has_solution(h):
+        return False
+    cost = float(np.dot(np.asarray(model.col_cost_), np.asarray(h.getSolution().col_value)))
+    claimed = float(h.getInfo().objective_function_value)
+    return cost > claimed + _OBJ_TOL * max(1.0, abs(claimed))
 
 
 def lp_bound(

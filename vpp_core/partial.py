@@ -31,13 +31,12 @@ import scipy.sparse as sp
 
 from vpp_core.cover import BUILD_TOL, COVER_TOL, SparseLike, as_costs, as_csr, coverage
 from vpp_core.errors import SolverError
-from vpp_core.lpbound import run_highs, silent_highs
+from vpp_core.lpbound import has_solution, solve_mip
 from vpp_core.reduce import row_groups, undominated_columns
 from vpp_core.setcover import CoverResult, closes_gap, solve_cover
 
 WEIGHT_RTOL = 1e-9
 """Satisfied weight may fall short of f·W by this fraction of W (float summation)."""
-_HIGHS_FEASIBLE = 2  # HiGHS kSolutionStatusFeasible
 
 
 @dataclass(frozen=True)
@@ -202,34 +201,24 @@ def _milp(
 ) -> tuple[np.ndarray, str, float | None, float | None]:
     """HiGHS on the merged model from `start`: (original columns, status, bound, time found)."""
     c = costs[g.cols]
-    h = silent_highs(
-        {
-            "time_limit": max(deadline - time.perf_counter(), 0.01),
-            "mip_rel_gap": float(mip_rel_gap),
-            "primal_feasibility_tolerance": 1e-9,
-            "mip_feasibility_tolerance": 1e-9,
-        },
-        threads,
-    )
-    h.passModel(_model(g, c, required))
-    warm = highspy.HighsSolution()
-    z = satisfied_rows(g.A, start, BUILD_TOL).astype(float)
     x = np.zeros(g.A.shape[1])
     x[start] = 1.0
-    warm.col_value = np.concatenate([x, z]).tolist()
-    warm.value_valid = True
-    run_highs(h, threads, lambda: h.setSolution(warm))
+    z = satisfied_rows(g.A, start, BUILD_TOL).astype(float)
+    model = _model(g, c, required)
+    time_limit = deadline - time.perf_counter()
+    h = solve_mip(model, np.concatenate([x, z]), time_limit, mip_rel_gap, threads)
     best, found = start, None
-    if h.getInfo().primal_solution_status == _HIGHS_FEASIBLE:
+    if h is not None and has_solution(h):
         values = np.asarray(h.getSolution().col_value[: g.A.shape[1]])
         mip = np.flatnonzero(values > 0.5)
         if _reaches(g.A, mip, g.w, required) and c[mip].sum() < c[start].sum():
             best, found = prune_partial(g.A, mip, c, g.w, required), time.perf_counter()
     objective = float(c[best].sum())
     integral = bool(np.all(c == np.floor(c)))
-    dual = float(h.getInfo().mip_dual_bound)
+    dual = float(h.getInfo().mip_dual_bound) if h is not None else 0.0
     bound, closed = closes_gap(dual if np.isfinite(dual) else 0.0, objective, integral)
-    return g.cols[best], _status(h.getModelStatus(), closed), max(bound, 0.0), found
+    status = h.getModelStatus() if h is not None else highspy.HighsModelStatus.kNotset
+    return g.cols[best], _status(status, closed), max(bound, 0.0), found
 
 
 def _status(model_status: highspy.HighsModelStatus, closed: bool) -> str:

@@ -31,13 +31,12 @@ from vpp_core.cover import (
 from vpp_core.greedy import complete_cover, greedy_cover, prune_cover, remove_redundant
 from vpp_core.localsearch import improve
 from vpp_core.lpbound import (
-    HighsOption,
     LpBound,
     columns_worth_keeping,
+    has_solution,
     highs_model,
     lp_bound,
-    run_highs,
-    silent_highs,
+    solve_mip,
 )
 from vpp_core.reduce import reduce_cover
 
@@ -50,10 +49,6 @@ __all__ = [
     "solve_cover",
 ]
 
-_HIGHS_FEAS_TOL = 1e-9
-_HIGHS_START_FEASIBLE = 2  # HiGHS kSolutionStatusFeasible
-_OBJ_TOL = 1e-6
-"""Relative slack between HiGHS's reported objective and its solution's cost."""
 _INT_BOUND_EPS = 1e-6  # ceil(bound - eps) for integer costs
 _REAL_GAP_TOL = 1e-6  # non-integer costs: gap closed when obj - bound <= 1e-6 max(1, obj)
 LP_SHARE = 0.4
@@ -102,17 +97,6 @@ def _trivial_bound(A: sp.csr_array, costs: np.ndarray) -> float:
 # ---------------------------------------------------------------------------- HiGHS
 
 
-def _highs(time_limit: float, mip_rel_gap: float, threads: int | None) -> highspy.Highs:
-    """A silent HiGHS instance with the MIP options set."""
-    options: dict[str, HighsOption] = {
-        "time_limit": max(float(time_limit), 0.01),
-        "mip_rel_gap": float(mip_rel_gap),
-        "primal_feasibility_tolerance": _HIGHS_FEAS_TOL,
-        "mip_feasibility_tolerance": _HIGHS_FEAS_TOL,
-    }
-    return silent_highs(options, threads)
-
-
 @dataclass(frozen=True)
 class _MipOutcome:
     """What HiGHS returned: its selection (or None), model status and dual bound."""
@@ -130,54 +114,17 @@ def _run_highs(
     mip_rel_gap: float,
     threads: int | None,
 ) -> _MipOutcome:
-    """Solve the cover of A (M, N) with HiGHS, warm-started from the cover `start` (K,).
-
-    HiGHS 1.16 can answer a warm-started run with "optimal" and an objective that the
-    solution it hands back does not have (it returns the start instead). Such an answer is
-    not trusted: HiGHS runs again, cold, in the time that is left.
-    """
-    deadline = time.perf_counter() + time_limit
-    out = _highs_once(A, costs, start, time_limit, mip_rel_gap, threads)
-    if out is None:
-        out = _highs_once(A, costs, None, deadline - time.perf_counter(), mip_rel_gap, threads)
-    return out or _MipOutcome(None, highspy.HighsModelStatus.kNotset, -math.inf)
-
-
-def _highs_once(
-    A: sp.csr_array,
-    costs: np.ndarray,
-    start: np.ndarray | None,
-    time_limit: float,
-    mip_rel_gap: float,
-    threads: int | None,
-) -> _MipOutcome | None:
-    """One HiGHS run (warm-started when `start` is given); None when its answer contradicts
-    itself (status optimal, but the solution returned costs more than its objective)."""
-    h = _highs(time_limit, mip_rel_gap, threads)
-    h.passModel(highs_model(A, costs, integer=True))
-    warm = highspy.HighsSolution()
-    if start is not None:
-        warm.col_value = indicator(A.shape[1], start).tolist()
-        warm.value_valid = True
-
-    def prepare() -> None:
-        if start is not None:
-            h.setSolution(warm)
-
-    run_highs(h, threads, prepare)
-    info = h.getInfo()
-    status = h.getModelStatus()
+    """Solve the cover of A (M, N) with HiGHS, warm-started from the cover `start` (K,)."""
+    model = highs_model(A, costs, integer=True)
+    h = solve_mip(model, indicator(A.shape[1], start), time_limit, mip_rel_gap, threads)
+    if h is None:  # its answer contradicted itself twice: nothing from it is trusted
+        return _MipOutcome(None, highspy.HighsModelStatus.kNotset, -math.inf)
     selected = None
-    if info.primal_solution_status == _HIGHS_START_FEASIBLE:
+    if has_solution(h):
         x = np.asarray(h.getSolution().col_value, dtype=np.float64)
         selected = np.flatnonzero(x > 0.5).astype(np.int64)
-        claimed = float(info.objective_function_value)
-        if status == highspy.HighsModelStatus.kOptimal and costs[selected].sum() > claimed + (
-            _OBJ_TOL * max(1.0, abs(claimed))
-        ):
-            return None
-    bound = float(info.mip_dual_bound)
-    return _MipOutcome(selected, status, bound if math.isfinite(bound) else -math.inf)
+    bound = float(h.getInfo().mip_dual_bound)
+    return _MipOutcome(selected, h.getModelStatus(), bound if math.isfinite(bound) else -math.inf)
 
 
 # ---------------------------------------------------------------------------- driver

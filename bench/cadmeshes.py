@@ -77,21 +77,34 @@ def rows(part: Part, label: str, args: argparse.Namespace) -> None:
             )
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def pair_parser(doc: str) -> argparse.ArgumentParser:
+    """Arguments of a CAD-against-remesh bench: MESH UNITS EDGE_MM, --seed, --time-limit,
+    --fractions (comma-separated)."""
+    parser = argparse.ArgumentParser(description=doc.splitlines()[0])
     parser.add_argument("mesh", type=Path)
     parser.add_argument("units")
     parser.add_argument("edge_mm", type=float)
-    parser.add_argument("--candidates", type=int, default=500)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--time-limit", type=float, default=30.0)
     parser.add_argument(
         "--fractions", type=lambda s: [float(x) for x in s.split(",")], default=[1, 0.999, 0.99]
     )
-    args = parser.parse_args()
+    return parser
+
+
+def load_pair(args: argparse.Namespace) -> tuple[Part, Part, str]:
+    """The CAD mesh of `args`, its isotropic remesh and the remesh's label."""
     cad = load_mesh(args.mesh.read_bytes(), args.mesh.suffix.lstrip("."), args.units)
+    return cad, isotropic_remesh(cad, args.edge_mm), f"iso {args.edge_mm:g} mm"
+
+
+def main() -> None:
+    parser = pair_parser(__doc__)
+    parser.add_argument("--candidates", type=int, default=500)
+    args = parser.parse_args()
+    cad, iso, label = load_pair(args)
     rows(cad, "cad", args)
-    rows(isotropic_remesh(cad, args.edge_mm), f"iso {args.edge_mm:g} mm", args)
+    rows(iso, label, args)
 
 
 if __name__ == "__main__":

@@ -36,15 +36,17 @@ import scipy.sparse as sp
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "bench"))
+
+from cadmeshes import load_pair, pair_parser  # noqa: E402
 
 from vpp_core.candidates import _place, _thin, smoothed_normals  # noqa: E402
 from vpp_core.document import CandidateGenerator, PlanRequest  # noqa: E402
 from vpp_core.embree import EmbreeBackend  # noqa: E402
-from vpp_core.mesh import Part, load_mesh  # noqa: E402
+from vpp_core.mesh import Part  # noqa: E402
 from vpp_core.partial import solve_partial  # noqa: E402
 from vpp_core.plan import candidates_for  # noqa: E402
 from vpp_core.pose import Viewpoints, make_viewpoints  # noqa: E402
-from vpp_core.remesh import isotropic_remesh  # noqa: E402
 from vpp_core.sensor import Sensor  # noqa: E402
 
 Points = tuple[np.ndarray, np.ndarray, np.ndarray]  # (k, 3) mm, (k,) face ids, (k,) mm²
@@ -212,25 +214,16 @@ def candidates(part: Part, args: argparse.Namespace) -> Viewpoints:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("mesh", type=Path)
-    parser.add_argument("units")
-    parser.add_argument("edge_mm", type=float)
+    parser = pair_parser(__doc__)
     parser.add_argument("--rows", choices=["random", "grid"], default="grid")
     parser.add_argument("--samples", type=int, default=20_000)
     parser.add_argument("--candidates", choices=["default", "grid", "grid-cells"], default="grid")
     parser.add_argument("--shared", action="store_true")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--time-limit", type=float, default=30.0)
-    parser.add_argument(
-        "--fractions", type=lambda s: [float(x) for x in s.split(",")], default=[1, 0.999, 0.99]
-    )
     args = parser.parse_args()
-    cad = load_mesh(args.mesh.read_bytes(), args.mesh.suffix.lstrip("."), args.units)
-    iso = isotropic_remesh(cad, args.edge_mm)
+    cad, iso, label = load_pair(args)
     cad_views = candidates(cad, args)
     run(cad, "cad", cad_views, args)
-    run(iso, f"iso {args.edge_mm:g} mm", cad_views if args.shared else candidates(iso, args), args)
+    run(iso, label, cad_views if args.shared else candidates(iso, args), args)
 
 
 if __name__ == "__main__":

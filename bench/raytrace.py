@@ -2,7 +2,8 @@
 
     python bench/raytrace.py [--faces 10000,100000,1000000] [--sizes large,small]
                              [--meshes MESH...] [--views 8] [--threads 1,2] [--repeat 3]
-                             [--backends raster,embree] [--no-ceiling] [--wait-idle S]
+                             [--min-time 1] [--backends raster,embree] [--no-ceiling]
+                             [--wait-idle S]
 
 Scenes: a sphere of about each `--faces` count (trimesh UV sphere) in two sizes, `large`
 (radius 195 mm: its silhouette covers the whole frame, 100 % of pixels hit) and `small`
@@ -26,7 +27,9 @@ over the wall time (Mrays/s), and `px/s` counts whole frames (views x 2.3 Mpx / 
   embreex's Embree 4 (no coherent packet path): the setup line says which.
 
 The scene of each method is built once per part (not timed); each measurement is warmed up
-on one view, then timed `--repeat` times (the fastest is kept). One JSON line per
+on one view, then timed `--repeat` times and more, as many as fit in `--min-time` seconds
+(the fastest is kept; the ceiling's harness repeats as often, so fast scenes get the same
+many chances on both sides). One JSON line per
 measurement goes to stdout; a summary table with the ratio of each backend to the ceiling and
 to bare embreex goes to stderr. `others` in the table is the most cores other processes used
 during the row's timings (above ~0.2 the rates are disturbed).
@@ -37,6 +40,7 @@ from __future__ import annotations
 import argparse
 import csv
 import hashlib
+import itertools
 import json
 import math
 import os
@@ -267,13 +271,22 @@ def write_scene(scene: Scene, threads: int, repeat: int, path: Path) -> None:
             fh.write(rot[j].astype("<f4").tobytes() + np.array(w, "<i4").tobytes())
 
 
-def run_ceiling(exe: Path, scene: Scene, threads: int, repeat: int) -> dict[str, Any]:
-    """Run the ceiling on the scene: {"wall_s", "rays", "hits", "embree"}."""
+def run_ceiling(
+    exe: Path, scene: Scene, threads: int, repeat: int, min_time: float = 0.0
+) -> dict[str, Any]:
+    """Run the ceiling on the scene: {"wall_s", "rays", "hits", "embree"}, the fastest of at
+    least `repeat` runs and of as many more as fit in `min_time` s (as `timed` does)."""
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "scene.bin"
-        write_scene(scene, threads, repeat + 1, path)  # its first run is the warm-up
-        out = subprocess.run([str(exe), str(path)], capture_output=True, text=True, check=True)
-    return dict(json.loads(out.stdout))
+        out: dict[str, Any] = {}
+        while not out or out["wall_s"] * repeat < min_time:
+            if out:  # fast scenes: as many runs as fit in min_time
+                repeat = math.ceil(min_time / max(out["wall_s"], 1e-6))
+            write_scene(scene, threads, repeat + 1, path)  # its first run is the warm-up
+            done = subprocess.run([str(exe), str(path)], capture_output=True, text=True)
+            done.check_returncode()
+            out = dict(json.loads(done.stdout))
+    return out
 
 
 # ------------------------------------------------------------------------ bare embreex and backends
@@ -352,11 +365,15 @@ class Timing:
     page_faults: int | None = None  # this process's minor page faults during it
 
 
-def timed(fn: Callable[[], Any], repeat: int) -> tuple[Timing, Any]:
-    """Fastest of `repeat` calls of fn, with this and other processes' average core use
-    during it (a noisy machine, or helper threads spinning, show here), and the last result."""
+def timed(fn: Callable[[], Any], repeat: int, min_time: float) -> tuple[Timing, Any]:
+    """Fastest of at least `repeat` calls of fn, and of as many more as fit in `min_time` s in
+    all, with this and other processes' average core use during it (a noisy machine, or
+    helper threads spinning, show here), and the last result."""
     best, result = Timing(), None
-    for _ in range(repeat):
+    start = time.perf_counter()
+    for done in itertools.count():
+        if done >= repeat and time.perf_counter() - start >= min_time:
+            break
         before, faults = busy_seconds(), minor_faults()
         t0 = time.perf_counter()
         result = fn()
@@ -425,7 +442,7 @@ def bench_scene(
             wait_idle(args.wait_idle)
             if method == "ceiling":
                 assert isinstance(ceiling, Path)
-                out = run_ceiling(ceiling, scene, threads, args.repeat)
+                out = run_ceiling(ceiling, scene, threads, args.repeat, args.min_time)
                 tm = Timing(out["wall_s"])  # another process: no core accounting
                 extra: dict[str, Any] = {"embree_major": out["embree"], "hits": out["hits"]}
             else:
@@ -435,7 +452,7 @@ def bench_scene(
                     )
                 else:
                     run_bare(embree, rays[:1], far, threads)
-                tm, result = timed(fn, args.repeat)
+                tm, result = timed(fn, args.repeat, args.min_time)
                 extra = {"valid_rays": int(result.counts.sum())} if method in backends else {}
             rate = scene.rays / tm.wall / 1e6
             row.rates[method], row.walls[method] = rate, tm.wall
@@ -504,6 +521,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--views", type=int, default=8, help="cameras per scene")
     ap.add_argument("--threads", default="1,2", help="comma-separated thread counts")
     ap.add_argument("--repeat", type=int, default=3, help="timed runs per measurement (fastest)")
+    ap.add_argument(
+        "--min-time",
+        type=float,
+        default=1.0,
+        metavar="S",
+        help="and more timed runs, as many as fit in S s per measurement (fast scenes)",
+    )
     ap.add_argument("--backends", default=",".join(BACKENDS), help="project backends to time")
     ap.add_argument("--no-ceiling", action="store_true", help="skip the C++ ceiling")
     ap.add_argument(

@@ -146,6 +146,31 @@ def test_raster_hands_views_with_more_faces_than_pixels_to_packets() -> None:
     assert np.abs(r.toarray() - ref.toarray()).max() <= 2
 
 
+@pytest.mark.parametrize("major", [3, 4])
+def test_counts_do_not_depend_on_blocks_threads_or_reuse(major: int) -> None:
+    # R in whole-view blocks on one thread (counters fresh) against blocks of 4 rows on 2
+    # threads, traced twice over one backend (its counters reused, so they must come back
+    # zero), and against Embree single rays; duplicate faces count on their representative
+    from tests.conftest import plate
+    from vpp_core.mesh import part_from_arrays
+
+    v, f = plate(side=60.0, n=12, tilt_deg=15.0)
+    part = part_from_arrays(v, np.vstack([f, f[::5, [1, 2, 0]]]))  # 58 duplicate faces
+    assert (part.representative != np.arange(part.n_faces)).sum() == len(f[::5])
+    sensor = Sensor(width_px=160, height_px=100)
+    positions = np.array([[0.0, 0.0, 400.0], [20.0, -10.0, 450.0], [-5.0, 30.0, 380.0]])
+    views = make_viewpoints(positions, -positions / np.linalg.norm(positions, axis=1)[:, None])
+    whole = trace_counts(part, sensor, views, backend=packets(part, major), threads=1).counts
+    split = packets(part, major)
+    split.block_rays = 4 * 160  # several blocks per view, merged per view
+    again = [trace_counts(part, sensor, views, backend=split, threads=2).counts for _ in "ab"]
+    ref = trace_counts(part, sensor, views, backend=EmbreeBackend(part), threads=1).counts
+    assert whole.sum() > 3000 and whole.has_sorted_indices
+    assert all((r != whole).nnz == 0 and r.has_sorted_indices for r in again)
+    assert not whole[np.flatnonzero(part.representative != np.arange(part.n_faces))].nnz
+    assert np.abs((whole - ref).toarray()).sum() <= (0 if major == 4 else 6)
+
+
 def test_library_choice() -> None:
     assert library(4).major == 4
     if os.environ.get("VPP_REQUIRE_EMBREE3"):  # where installed, Embree 3 is the default

@@ -50,6 +50,10 @@ _TNEAR, _DIR, _TIME, _TFAR, _MASK, _ID, _FLAGS = 3, 4, 7, 8, 9, 10, 11
 _NG, _PRIM, _GEOM = 12, 17, 18
 _PACKET_WORDS = 21 * _LANES  # room for instID and instPrimID
 
+GROUP = 64
+"""Faces per mark of trace_window's hit faces: reading them back in ascending order costs a
+scan of M / GROUP marks plus GROUP counters per marked group, no sort and no O(M) scan."""
+
 EMBREE3 = ("libembree3.so.3", "libembree3.3.dylib", "embree3.dll")
 """Where the system's Embree 3 is looked for (Debian/Ubuntu: `apt install libembree3-3`)."""
 
@@ -178,7 +182,8 @@ class PacketBackend:
         self._scene = _Scene(self.library, part.vertices, part.faces)
         self._tiles, self._rays = self.library.query(True), self.library.query(False)
         self._n_faces = part.n_faces
-        self._local = threading.local()  # per thread: counts (M,) int32, zero between calls
+        self._idle: list[tuple[np.ndarray, np.ndarray]] = []  # counters not in use, all zero
+        self._lock = threading.Lock()
 
     def first_hits(
         self, origin: np.ndarray, directions: np.ndarray, t_max: float
@@ -192,12 +197,9 @@ class PacketBackend:
         )
 
     def valid_hits(self, block: Block) -> Hits:
-        """Faces of the block's valid pixel rays (sorted) and their counts (GIL released)."""
+        """Faces of the block's valid pixel rays (ascending) and their counts (GIL released)."""
         faces, counts, _, _, _ = self._trace(block, store=False)
-        # sort (face, count) pairs as one int64 key: numpy's vectorised sort, O(k log k) on
-        # the k faces hit, where a scan of all M faces per block would cost O(M)
-        keys = np.sort((faces.astype(np.int64) << 32) | counts)
-        return (keys >> 32).astype(np.int32), (keys & 0xFFFFFFFF).astype(np.int32)
+        return faces, counts
 
     def pixel_hits(self, block: Block) -> PixelHits:
         """The block's valid pixel rays one by one, row-major: pixel, face and depth."""
@@ -206,14 +208,15 @@ class PacketBackend:
         return PixelHits(pixels[order], faces[order], depth[order])
 
     def _trace(self, block: Block, store: bool) -> tuple[np.ndarray, ...]:
-        """trace_window over the block."""
+        """trace_window over the block, with a pair of counters no other thread is using."""
         sensor = block.sensor
-        return trace_window(
+        counters = self._take_counters()
+        out = trace_window(
             *self._call(self._tiles),
             np.asarray(block.position, dtype=np.float32),
             np.ascontiguousarray(block.rotation, dtype=np.float32),
             np.ascontiguousarray(block.rotation, dtype=np.float64),
-            self._counts(),
+            *counters,
             sensor.pixel_x,
             sensor.pixel_y,
             window_of(block),
@@ -222,13 +225,18 @@ class PacketBackend:
             math.cos(math.radians(sensor.max_incidence_deg)),
             store,
         )
+        with self._lock:  # zero again: trace_window leaves them so (dropped if it raised)
+            self._idle.append(counters)
+        return out
 
-    def _counts(self) -> np.ndarray:
-        """This thread's per-face counter (M,) int32, all zero (trace_window leaves it so)."""
-        counts: np.ndarray | None = getattr(self._local, "counts", None)
-        if counts is None:
-            counts = self._local.counts = np.zeros(self._n_faces, np.int32)
-        return counts
+    def _take_counters(self) -> tuple[np.ndarray, np.ndarray]:
+        """A per-face counter (M,) int32 and its marks per GROUP faces (ceil(M / GROUP),)
+        uint8, all zero: kept across calls and threads (fresh pages would fault on every
+        trace: a pool's threads are new each time)."""
+        with self._lock:
+            if self._idle:
+                return self._idle.pop()
+        return np.zeros(self._n_faces, np.int32), np.zeros(-(-self._n_faces // GROUP), np.uint8)
 
     def _call(self, query: np.ndarray) -> tuple[Any, int, int, np.ndarray]:
         """What the kernels need to call rtcIntersect16: function, ABI, scene, query."""
@@ -331,6 +339,7 @@ def trace_window(
     rotation32: np.ndarray,
     rotation: np.ndarray,
     counts: np.ndarray,
+    marks: np.ndarray,
     px: np.ndarray,
     py: np.ndarray,
     window: np.ndarray,
@@ -340,27 +349,27 @@ def trace_window(
     store: bool,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The window's pixel rays traced as coherent 4 x 4 packets and checked (SPEC §3): the
-    faces hit by valid rays (k,) int32, unsorted, and their ray counts (k,) int32; with `store`
+    faces hit by valid rays (k,) int32, ascending, and their ray counts (k,) int32; with `store`
     also each valid ray, in tile order: its pixel (n,) int64 (row-major index within the
     window), face (n,) int32 and depth (n,) float32 mm (else three empty arrays).
 
     intersect16: rtcIntersect16 of Embree `major` (3 or 4), its scene and query (16,) uint32
     (context or arguments); position (3,) float32 mm; rotation32 / rotation (3, 3) float32 /
-    float64 camera-to-world; counts (M,) int32 all zero (left so); px (W,), py (H,) float32
+    float64 camera-to-world; counts (M,) int32 and marks (ceil(M / GROUP),) uint8 all zero
+    (left so); px (W,), py (H,) float32
     ray x, y at z = 1; window (4,) int64 = rows v0:v1, columns u0:u1; near, far mm; cos_min of the
     largest incidence angle. Ray directions are block_directions' own float32 values,
     x R[:, 0] + (y R[:, 1] + R[:, 2]); depth t >= near, and incidence on Embree's Ng.
     """
     v0, v1, u0, u1 = window[0], window[1], window[2], window[3]
     h, w = max(v1 - v0, 0), max(u1 - u0, 0)
-    touched = np.empty(min(counts.shape[0], h * w), np.int32)
     size = h * w if store else 0
     pixels, faces, depth = (
         np.empty(size, np.int64),
         np.empty(size, np.int32),
         np.empty(size, np.float32),
     )
-    n = k = 0
+    n = 0
     packet, lanes, valid = _packet()
     for lane in range(_LANES):  # the fields Embree only reads, once
         _set_ray(packet, lanes, lane, position, (0.0, 0.0, 0.0), far)
@@ -400,14 +409,27 @@ def trace_window(
                 )
                 if t < near or not _incidence_ok(packet, lane, d, x * x + y * y + 1.0, cos2):
                     continue
-                if counts[f] == 0:
-                    touched[k] = f
-                    k += 1
+                marks[f // GROUP] = 1
                 counts[f] += 1
                 if store:
                     pixels[n], faces[n], depth[n] = (ti + a) * w + tj + b, f, t
                     n += 1
-    hit = touched[:k]
-    hits = counts[hit]
-    counts[hit] = 0
+    hit, hits = _collect(counts, marks, min(counts.shape[0], h * w))
     return hit, hits, pixels[:n], faces[:n], depth[:n]
+
+
+@inline
+def _collect(counts: np.ndarray, marks: np.ndarray, most: int) -> tuple[np.ndarray, np.ndarray]:
+    """The faces (k,) int32 with a nonzero count, ascending, and their counts (k,) int32, at
+    most `most` of them; counts (M,) int32 and marks (ceil(M / GROUP),) uint8 are left zero."""
+    hit, hits = np.empty(most, np.int32), np.empty(most, np.int32)
+    k = 0
+    for g in range(marks.shape[0]):
+        if marks[g]:
+            marks[g] = 0
+            for f in range(g * GROUP, min((g + 1) * GROUP, counts.shape[0])):
+                if counts[f]:
+                    hit[k], hits[k] = f, counts[f]
+                    counts[f] = 0
+                    k += 1
+    return hit[:k], hits[:k]

@@ -99,6 +99,7 @@ def trace_counts(
     hull = part_hull(part) if cull else None
     windows = [_window(sensor, views.positions[j], rotations[j], hull) for j in range(len(views))]
     tasks = [c for j, w in enumerate(windows) for c in _chunks(j, *w, backend.block_rays)]
+    tasks.sort(key=lambda c: -c.size)
     empty = (np.empty(0, np.int32), np.empty(0, np.int32))
     columns: list[tuple[np.ndarray, np.ndarray]] = [empty] * len(views)
     pending: dict[int, list[Hits]] = {}
@@ -199,19 +200,20 @@ def _window(
 
 
 def _column(hits: list[Hits], representative: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """One view's (faces hit, valid-ray counts), both (k,) int32, from its blocks' hits;
-    duplicate faces counted on their representative."""
-    faces, counts = hits[0]
-    if len(hits) == 1 and counts is not None:  # reduced in the worker: O(k), not O(M)
-        if np.array_equal(representative.take(faces), faces):
-            return faces.astype(np.int32), counts.astype(np.int32)
+    """One view's (faces hit, valid-ray counts), both (k,) int32, faces ascending, from its
+    blocks' hits; duplicate faces counted on their representative."""
     faces = representative.take(np.concatenate([f for f, _ in hits]))
-    weights = None
-    if any(c is not None for _, c in hits):
-        weights = np.concatenate([np.ones(len(f)) if c is None else c for f, c in hits])
-    counts = np.bincount(faces, weights, minlength=len(representative))
-    nz = np.flatnonzero(counts)
-    return nz.astype(np.int32), counts[nz].astype(np.int32)
+    if all(c is None for _, c in hits):  # one id per ray: O(M + rays) beats sorting rays
+        counts = np.bincount(faces, minlength=len(representative))
+        nz = np.flatnonzero(counts)
+        return nz.astype(np.int32), counts[nz].astype(np.int32)
+    counts = np.concatenate([np.ones(len(f), np.int32) if c is None else c for f, c in hits])
+    if len(hits) > 1 or not (faces[1:] > faces[:-1]).all():  # merge: O(k log k), not O(M)
+        order = np.argsort(faces, kind="stable")  # runs of sorted blocks: a cheap merge
+        faces, counts = faces[order], counts[order]
+        starts = np.flatnonzero(np.r_[True, faces[1:] != faces[:-1]])
+        faces, counts = faces[starts], np.add.reduceat(counts, starts)
+    return faces.astype(np.int32), counts.astype(np.int32)
 
 
 def _assemble(columns: list[tuple[np.ndarray, np.ndarray]], n_faces: int) -> sp.csc_array:

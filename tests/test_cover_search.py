@@ -13,7 +13,7 @@ from scipy.optimize import Bounds, LinearConstraint, linprog, milp
 from vpp_core.cover import is_cover
 from vpp_core.greedy import greedy_cover
 from vpp_core.localsearch import improve
-from vpp_core.lpbound import columns_worth_keeping, lagrangian, lp_bound
+from vpp_core.lpbound import IPM_TALL, columns_worth_keeping, lagrangian, lp_bound
 from vpp_core.samples import window_cover
 from vpp_core.setcover import solve_cover
 
@@ -46,10 +46,12 @@ def test_lagrangian_bound_never_exceeds_the_optimum(seed: int, real: bool) -> No
         assert lagrangian(A, costs, u)[0] <= cost.min() + 1e-9
 
 
+@pytest.mark.parametrize("rows", [14, 40])  # 40 x 11: tall, the interior point's models
 @pytest.mark.parametrize("real", [False, True])
 @pytest.mark.parametrize("seed", range(6))
-def test_lp_bound_is_the_lp_value(seed: int, real: bool) -> None:
-    A, costs = random_instance(seed, real)
+def test_lp_bound_is_the_lp_value(seed: int, real: bool, rows: int) -> None:
+    A, costs = random_instance(seed, real, m=rows)
+    assert (rows > IPM_TALL * A.shape[1]) == (rows == 40)  # both of lp_bound's LP solvers
     ref = linprog(costs, A_ub=-A.toarray(), b_ub=-np.ones(A.shape[0]), bounds=(0, 1))
     lp = lp_bound(A, costs, 10.0)
     assert lp.status == "optimal"
@@ -57,10 +59,11 @@ def test_lp_bound_is_the_lp_value(seed: int, real: bool) -> None:
     assert lp.bound <= all_covers(A, costs)[1].min() + 1e-9
 
 
+@pytest.mark.parametrize("rows", [14, 40])
 @pytest.mark.parametrize("real", [False, True])
 @pytest.mark.parametrize("seed", range(6))
-def test_reduced_cost_fixing_keeps_every_cheaper_cover(seed: int, real: bool) -> None:
-    A, costs = random_instance(seed, real)
+def test_reduced_cost_fixing_keeps_every_cheaper_cover(seed: int, real: bool, rows: int) -> None:
+    A, costs = random_instance(seed, real, m=rows)
     subsets, cost = all_covers(A, costs)
     lp = lp_bound(A, costs, 10.0)
     for incumbent in np.unique(cost)[:4]:

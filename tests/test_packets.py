@@ -8,7 +8,7 @@ import os
 import numpy as np
 import pytest
 
-from tests.conftest import MANIFEST_UNITS, MESHES, manifest_rows, plate_part, shared_dir
+from tests.conftest import MANIFEST_UNITS, MESHES, manifest_rows, plate, plate_part, shared_dir
 from tests.test_raster import (
     EDGE_PX,
     PAPER,
@@ -20,7 +20,7 @@ from tests.test_raster import (
 from vpp_core.candidates import GeneratorSettings, generate
 from vpp_core.embree import EmbreeBackend, block_directions
 from vpp_core.errors import VppError
-from vpp_core.mesh import Part, load_mesh
+from vpp_core.mesh import Part, load_mesh, part_from_arrays
 from vpp_core.packets import PacketBackend, library
 from vpp_core.pose import Viewpoints, make_viewpoints
 from vpp_core.raster import MAX_FACES_PER_PIXEL, RasterBackend
@@ -151,9 +151,6 @@ def test_counts_do_not_depend_on_blocks_threads_or_reuse(major: int) -> None:
     # R in whole-view blocks on one thread (counters fresh) against blocks of 4 rows on 2
     # threads, traced twice over one backend (its counters reused, so they must come back
     # zero), and against Embree single rays; duplicate faces count on their representative
-    from tests.conftest import plate
-    from vpp_core.mesh import part_from_arrays
-
     v, f = plate(side=60.0, n=12, tilt_deg=15.0)
     part = part_from_arrays(v, np.vstack([f, f[::5, [1, 2, 0]]]))  # 58 duplicate faces
     assert (part.representative != np.arange(part.n_faces)).sum() == len(f[::5])

@@ -138,6 +138,22 @@ def test_a_failed_chunk_fails_the_plan_with_its_reason(api, start_workers, monke
     assert api.get(f"/v1/plans/{job}").status_code == 404
 
 
+def test_a_job_that_ends_while_its_state_is_read_is_succeeded(api, monkeypatch) -> None:
+    # The state used to look in the store first, then at the job: a job ending in between
+    # (its document written, then its status set) read as "succeeded, result missing".
+    from worker import artifacts, queue
+
+    job = submit(api, {"mesh_id": upload_sample(api), "candidates": {"count": 40}})
+    real = queue._status
+
+    def ends_now(rq_job):  # the worker writes the document and finishes as we look
+        api.app.state.store.put(artifacts.plan_key(job), b"{}")
+        return "succeeded" if real(rq_job) is not None else None
+
+    monkeypatch.setattr(queue, "_status", ends_now)
+    assert api.get(f"/v1/jobs/{job}").json()["status"] == "succeeded"
+
+
 def test_workers_share_an_s3_store(svc_env, s3_endpoint, monkeypatch, start_workers) -> None:
     from fastapi.testclient import TestClient
 

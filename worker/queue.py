@@ -120,9 +120,9 @@ def submit(
 def state(conn: Redis, store: Store, plan: str) -> JobState:
     """The job state of `plan`; NotFoundError when neither Redis nor the store knows it."""
     job = _fetch(conn, plan)
-    if any(store.exists(key) for key in art.done_keys(plan)):
+    status = _status(job) if job is not None else None  # before the store: a job that ends
+    if any(store.exists(key) for key in art.done_keys(plan)):  # in between is found done
         return _from_job(plan, "succeeded", {"stage": "done"}, job)
-    status = _status(job) if job is not None else None
     if job is not None and status == "running":  # its worker may have died: sweep, look again
         StartedJobRegistry(job.origin, connection=conn).cleanup()
         status = _status(job)

@@ -42,6 +42,7 @@ from vpp_core.density import cover_model  # noqa: E402
 from vpp_core.document import CandidateGenerator, PlanRequest  # noqa: E402
 from vpp_core.lpbound import lp_bound  # noqa: E402
 from vpp_core.mesh import load_mesh  # noqa: E402
+from vpp_core.mip import child_peak_rss_mib  # noqa: E402
 from vpp_core.orlib import parse_orlib  # noqa: E402
 from vpp_core.plan import candidates_for  # noqa: E402
 from vpp_core.raytrace import make_backend, trace_counts  # noqa: E402
@@ -106,8 +107,9 @@ def synthetic_instance(shape: str, binary: bool, seed: int) -> Iterator[Instance
 
 
 def peak_rss_mib() -> float:
-    """Peak resident memory of this process so far (MiB)."""
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    """Peak resident memory so far (MiB): this process's plus that of its HiGHS process (both
+    peaks added, an upper bound on what they held at once)."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0 + child_peak_rss_mib()
 
 
 def run(inst: Instance, solver: str, args: argparse.Namespace) -> dict[str, Any]:

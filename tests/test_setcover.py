@@ -317,7 +317,7 @@ def fake_highs(monkeypatch: pytest.MonkeyPatch, sel: list[int], status: str, bou
     )
     monkeypatch.setattr(setcover, "_run_highs", lambda *args, **kwargs: outcome)
     everything = lambda A, *args: np.ones(A.shape[1], dtype=bool)  # noqa: E731
-    monkeypatch.setattr(setcover.lagrange, "core", everything)  # no core run, no column fixed
+    monkeypatch.setattr(setcover, "core_columns", everything)  # no core run, no column fixed
     monkeypatch.setattr(setcover, "columns_worth_keeping", lambda lp, *a: everything(TINY))
     monkeypatch.setattr(setcover, "lp_bound", weak_lp)
 

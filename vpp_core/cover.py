@@ -57,6 +57,11 @@ def as_costs(costs: np.ndarray | None, n: int) -> np.ndarray:
     return c
 
 
+def integral_costs(costs: np.ndarray) -> bool:
+    """Every cost (N,) is a whole number, so every cover's cost is one too."""
+    return bool(np.all(costs == np.floor(costs)))
+
+
 def check_coverable(A: sp.csr_array) -> None:
     """Raise SolverError when some row of A (M, N) is not covered even by all columns."""
     short = np.flatnonzero(np.asarray(A.sum(axis=1)).reshape(-1) < 1.0 - BUILD_TOL)

@@ -31,11 +31,6 @@ models at 2000 candidates (docs/setcover.md), dual simplex took 6.4 s where the 
 point took 0.3 s (fandisk, 4568 × 1967) and had not finished after 200 s where it took 2.6 s
 (turbine blade, 31997 × 1910); on the squarer models it is the faster, by under a second."""
 _FIX_TOL = 1e-6  # relative slack kept when fixing columns by reduced cost
-MIP_FEAS_TOL = 1e-9
-"""HiGHS's primal and MIP feasibility tolerances for the covering MIPs."""
-_HIGHS_FEASIBLE = 2  # HiGHS kSolutionStatusFeasible
-_OBJ_TOL = 1e-6
-"""Relative slack between HiGHS's reported objective and its solution's cost."""
 
 
 @dataclass(frozen=True)
@@ -115,63 +110,6 @@ def run_highs(
         h.run()
 
 
-def solve_mip(
-    model: highspy.HighsLp,
-    start: np.ndarray | None,
-    time_limit: float,
-    mip_rel_gap: float,
-    threads: int | None,
-) -> highspy.Highs | None:
-    """HiGHS on the MIP `model`, warm-started at column values `start` (N,) when given; the
-    solved instance, or None when its answer contradicts itself.
-
-    HiGHS 1.16 can answer a warm-started run with "optimal" at an objective that the solution
-    it hands back does not have (it returns the start instead). Such an answer is dropped and
-    HiGHS runs again, cold, in the time that is left.
-    """
-    deadline = time.perf_counter() + time_limit
-    h = _mip_highs(model, time_limit, mip_rel_gap, threads)
-    if start is not None:
-        warm = highspy.HighsSolution()
-        warm.col_value = np.asarray(start, dtype=np.float64).tolist()
-        warm.value_valid = True
-        run_highs(h, threads, lambda: h.setSolution(warm))
-        if not _contradicts(h, model):
-            return h
-        h = _mip_highs(model, deadline - time.perf_counter(), mip_rel_gap, threads)
-    run_highs(h, threads)
-    return None if _contradicts(h, model) else h
-
-
-def has_solution(h: highspy.Highs) -> bool:
-    """HiGHS holds a feasible primal solution."""
-    return bool(h.getInfo().primal_solution_status == _HIGHS_FEASIBLE)
-
-
-def _mip_highs(
-    model: highspy.HighsLp, time_limit: float, mip_rel_gap: float, threads: int | None
-) -> highspy.Highs:
-    """A silent HiGHS instance holding `model`, with the MIP options set."""
-    options: dict[str, HighsOption] = {
-        "time_limit": max(float(time_limit), 0.01),
-        "mip_rel_gap": float(mip_rel_gap),
-        "primal_feasibility_tolerance": MIP_FEAS_TOL,
-        "mip_feasibility_tolerance": MIP_FEAS_TOL,
-    }
-    h = silent_highs(options, threads)
-    h.passModel(model)
-    return h
-
-
-def _contradicts(h: highspy.Highs, model: highspy.HighsLp) -> bool:
-    """HiGHS says "optimal", but the solution it returns costs more than its objective."""
-    if h.getModelStatus() != highspy.HighsModelStatus.kOptimal or not has_solution(h):
-        return False
-    cost = float(np.dot(np.asarray(model.col_cost_), np.asarray(h.getSolution().col_value)))
-    claimed = float(h.getInfo().objective_function_value)
-    return cost > claimed + _OBJ_TOL * max(1.0, abs(claimed))
-
-
 def lp_bound(
     A: sp.csr_array, costs: np.ndarray, time_limit: float, threads: int | None = None
 ) -> LpBound:
@@ -204,3 +142,13 @@ def columns_worth_keeping(lp: LpBound, incumbent: float, step: float) -> np.ndar
     target = incumbent - step
     slack = _FIX_TOL * max(1.0, abs(target))
     return np.asarray(lp.bound + np.maximum(lp.reduced, 0.0) <= target + slack)
+
+
+def core_columns(A: sp.csr_array, reduced: np.ndarray, per_row: int) -> np.ndarray:
+    """(N,) bool: the `per_row` columns of least reduced cost (N,) of every row of A (M, N)."""
+    rows = np.repeat(np.arange(A.shape[0]), np.diff(A.indptr))
+    order = np.lexsort((reduced[A.indices], rows))
+    rank = np.arange(order.size) - A.indptr[rows[order]]
+    core = np.zeros(A.shape[1], dtype=bool)
+    core[A.indices[order[rank < per_row]]] = True
+    return core

@@ -22,6 +22,7 @@ its dual bound meets the cover's cost. f = 1 is the strict cover (`solve_cover`)
 
 from __future__ import annotations
 
+import functools
 import time
 from dataclasses import dataclass
 
@@ -29,9 +30,17 @@ import highspy
 import numpy as np
 import scipy.sparse as sp
 
-from vpp_core.cover import BUILD_TOL, COVER_TOL, SparseLike, as_costs, as_csr, coverage
+from vpp_core.cover import (
+    BUILD_TOL,
+    COVER_TOL,
+    SparseLike,
+    as_costs,
+    as_csr,
+    coverage,
+    integral_costs,
+)
 from vpp_core.errors import SolverError
-from vpp_core.lpbound import has_solution, solve_mip
+from vpp_core.mip import solve_mip
 from vpp_core.reduce import row_groups, undominated_columns
 from vpp_core.setcover import CoverResult, closes_gap, solve_cover
 
@@ -204,21 +213,19 @@ def _milp(
     x = np.zeros(g.A.shape[1])
     x[start] = 1.0
     z = satisfied_rows(g.A, start, BUILD_TOL).astype(float)
-    model = _model(g, c, required)
+    model = functools.partial(_model, g, c, required)
     time_limit = deadline - time.perf_counter()
     h = solve_mip(model, np.concatenate([x, z]), time_limit, mip_rel_gap, threads)
     best, found = start, None
-    if h is not None and has_solution(h):
-        values = np.asarray(h.getSolution().col_value[: g.A.shape[1]])
-        mip = np.flatnonzero(values > 0.5)
+    if h.x is not None:
+        mip = np.flatnonzero(h.x[: g.A.shape[1]] > 0.5)
         if _reaches(g.A, mip, g.w, required) and c[mip].sum() < c[start].sum():
             best, found = prune_partial(g.A, mip, c, g.w, required), time.perf_counter()
     objective = float(c[best].sum())
-    integral = bool(np.all(c == np.floor(c)))
-    dual = float(h.getInfo().mip_dual_bound) if h is not None else 0.0
-    bound, closed = closes_gap(dual if np.isfinite(dual) else 0.0, objective, integral)
-    status = h.getModelStatus() if h is not None else highspy.HighsModelStatus.kNotset
-    return g.cols[best], _status(status, closed), max(bound, 0.0), found
+    integral = integral_costs(c)
+    dual = h.dual_bound if np.isfinite(h.dual_bound) else 0.0
+    bound, closed = closes_gap(dual, objective, integral)
+    return g.cols[best], _status(h.status, closed), max(bound, 0.0), found
 
 
 def _status(model_status: highspy.HighsModelStatus, closed: bool) -> str:

@@ -4,7 +4,7 @@ A is (M rows × N columns); rows are faces, columns candidate viewpoints. A is e
 (visibility, the classical set cover) or real partial coverage S (several partial columns
 may add up to cover a row). `solve_cover(method="greedy")` is greedy + redundancy removal;
 `method="milp"` reduces the model, then spends its time on the LP bound, a quick exact
-HiGHS try, the Lagrangian heuristic, local search, HiGHS on a core and HiGHS on the
+HiGHS try, a row-weighting local search, HiGHS on a core and HiGHS on the
 reduced-cost-fixed model (docs/setcover.md). Tolerances are those of `vpp_core.cover`.
 """
 
@@ -13,12 +13,13 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
+from functools import partial
 
 import highspy
 import numpy as np
 import scipy.sparse as sp
 
-from vpp_core import lagrange
+from vpp_core import mip, rowweight
 from vpp_core.cover import (
     COVER_TOL,
     SparseLike,
@@ -26,17 +27,16 @@ from vpp_core.cover import (
     as_csr,
     check_coverable,
     indicator,
+    integral_costs,
     is_cover,
 )
 from vpp_core.greedy import complete_cover, greedy_cover, prune_cover, remove_redundant
-from vpp_core.localsearch import improve
 from vpp_core.lpbound import (
     LpBound,
     columns_worth_keeping,
-    has_solution,
+    core_columns,
     highs_model,
     lp_bound,
-    solve_mip,
 )
 from vpp_core.reduce import reduce_cover
 
@@ -55,16 +55,17 @@ LP_SHARE = 0.4
 """At most this share of the time limit goes to the LP bound."""
 QUICK_SHARE = 0.1
 """At most this share of the time left after the LP goes to a first exact HiGHS run."""
-LAGRANGE_SHARE = 0.4
-"""At most this share of the time left after the LP goes to the Lagrangian heuristic."""
-SEARCH_SHARE = 0.3
-"""At most this share of the time left then goes to local search."""
+SEARCH_SHARE = 0.5
+"""At most this share of the time left then goes to the row-weighting search."""
+SEARCH_PATIENCE = 100
+"""The row-weighting search stops after this many steps per column without a cheaper cover."""
 CORE_SHARE = 0.25
 """At most this share of the time left then goes to HiGHS on the core (least reduced costs)."""
 CORE_PER_ROW = 5
 """Columns of least reduced cost per row that make up the core."""
 LOCAL_SEARCH_NNZ = 2_000_000
-"""Reduced models with more nonzeros get local search instead of HiGHS branch-and-bound."""
+"""Reduced models with more nonzeros get the row-weighting search instead of HiGHS
+branch-and-bound."""
 
 
 @dataclass(frozen=True)
@@ -115,16 +116,10 @@ def _run_highs(
     threads: int | None,
 ) -> _MipOutcome:
     """Solve the cover of A (M, N) with HiGHS, warm-started from the cover `start` (K,)."""
-    model = highs_model(A, costs, integer=True)
-    h = solve_mip(model, indicator(A.shape[1], start), time_limit, mip_rel_gap, threads)
-    if h is None:  # its answer contradicted itself twice: nothing from it is trusted
-        return _MipOutcome(None, highspy.HighsModelStatus.kNotset, -math.inf)
-    selected = None
-    if has_solution(h):
-        x = np.asarray(h.getSolution().col_value, dtype=np.float64)
-        selected = np.flatnonzero(x > 0.5).astype(np.int64)
-    bound = float(h.getInfo().mip_dual_bound)
-    return _MipOutcome(selected, h.getModelStatus(), bound if math.isfinite(bound) else -math.inf)
+    model = partial(highs_model, A, costs, integer=True)
+    h = mip.solve_mip(model, indicator(A.shape[1], start), time_limit, mip_rel_gap, threads)
+    selected = None if h.x is None else np.flatnonzero(h.x > 0.5).astype(np.int64)
+    return _MipOutcome(selected, h.status, h.dual_bound)
 
 
 # ---------------------------------------------------------------------------- driver
@@ -181,6 +176,17 @@ class _Search:
         if is_cover(self.A, cover):  # a cover from any step is checked before it counts
             self.best, self.found_at = cover, time.perf_counter()
 
+    def walk(self, deadline: float, patience: int = 10**12) -> None:
+        """Row-weighting search from the best cover until `deadline`, the bound or `patience`
+        steps without a cheaper cover."""
+        if not rowweight.compiled(deadline - time.perf_counter()):
+            return
+        target = closes_gap(self.bound, self.objective, self.integral)[0]
+        found = rowweight.search(
+            self.A, self.costs, self.best, deadline, target=target, patience=patience
+        )
+        self.offer(found)
+
     def mip(self, keep: np.ndarray, time_limit: float, gap: float) -> _MipOutcome:
         """HiGHS on the columns `keep` (n,) bool (which must hold the incumbent)."""
         cols = np.flatnonzero(keep)
@@ -195,28 +201,22 @@ class _Search:
 
 
 def _search(S: _Search, mip_rel_gap: float) -> None:
-    """LP bound, a quick exact try, the Lagrangian heuristic, local search, HiGHS on a core,
-    then HiGHS on what can win."""
+    """LP bound, a quick exact try, the row-weighting search, HiGHS on a core, then HiGHS on
+    what can win."""
     lp = lp_bound(S.A, S.costs, S.left(LP_SHARE), S.threads)
     S.bound = max(S.bound, lp.bound)
     if S.closed():
         return
-    target = closes_gap(S.bound, S.objective, S.integral)[0]
     if S.A.nnz > LOCAL_SEARCH_NNZ:  # HiGHS cannot branch on this: search locally instead
-        S.offer(improve(S.A, S.costs, S.best, S.deadline, target=target))
+        S.walk(S.deadline)
         return
     _exact(S, lp, S.left(QUICK_SHARE), mip_rel_gap)
     if S.closed() or S.mip_status == highspy.HighsModelStatus.kOptimal:
         return
-    end = time.perf_counter() + S.left(LAGRANGE_SHARE)
-    S.offer(lagrange.search(S.A, S.costs, S.best, end, duals=lp.duals, target=target).selected)
+    S.walk(time.perf_counter() + S.left(SEARCH_SHARE), SEARCH_PATIENCE * S.A.shape[1])
     if S.closed():
         return
-    end = time.perf_counter() + S.left(SEARCH_SHARE)
-    S.offer(improve(S.A, S.costs, S.best, end, target=target))
-    if S.closed():
-        return
-    core = lagrange.core(S.A, lp.reduced, CORE_PER_ROW)
+    core = core_columns(S.A, lp.reduced, CORE_PER_ROW)
     core[S.best] = True
     if core.sum() < S.A.shape[1] and S.left() > 0:
         S.mip(core, S.left(CORE_SHARE), mip_rel_gap)
@@ -243,9 +243,11 @@ def _solve_milp(
     threads: int | None,
 ) -> CoverResult:
     """Exact solve of the cover of A (M, N): reductions, greedy, LP bound, HiGHS on what is left."""
+    mip.warm()  # the HiGHS process and the search's compile start while the model is reduced
+    rowweight.compiled(0.0)
     red = reduce_cover(A, costs)
     R, c = red.matrix, costs[red.columns]
-    integral = bool(np.all(costs == np.floor(costs)))
+    integral = integral_costs(costs)
     greedy = complete_cover(R, c, np.zeros(0, dtype=np.int64)) if R.shape[0] else red.columns[:0]
     S = _Search(R, c, greedy, _trivial_bound(R, c), integral, t0 + time_limit, threads)
     if R.shape[0] and not S.closed() and S.left() > 0:

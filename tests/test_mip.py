@@ -108,6 +108,24 @@ def test_an_error_in_the_child_is_raised_here() -> None:
     assert solve(A, costs).status == highspy.HighsModelStatus.kOptimal
 
 
+def test_an_interrupted_call_leaves_no_answer_to_the_next(monkeypatch: pytest.MonkeyPatch) -> None:
+    from multiprocessing.connection import Connection
+
+    pid = mip._child().proc.pid
+
+    def interrupted(self: Connection, timeout: float) -> bool:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(Connection, "poll", interrupted)
+    with pytest.raises(KeyboardInterrupt):  # Ctrl-C while the child works on a request
+        mip.solve_mip(functools.partial(time.sleep, 0.5), None, 5.0, 0.0, None)
+    monkeypatch.undo()
+    assert mip._child().proc.pid != pid
+    A, costs = random_model(8)
+    out = solve(A, costs)
+    assert out.x is not None and costs[out.x > 0.5].sum() == pytest.approx(scipy_optimum(A, costs))
+
+
 def _solve_in_fork(seed: int) -> float:
     A, costs = random_model(seed)
     out = solve(A, costs)

@@ -68,22 +68,29 @@ def solve_mip(
     """HiGHS on the MIP `build()` (a picklable callable, run in the child), warm-started at
     column values `start` (N,) when given, within `time_limit` s (a hard wall, see above)."""
     deadline = time.monotonic() + time_limit
+    wall = deadline + max(time_limit, 0.0) * GRACE_SHARE + GRACE_S
     child = _child()
     try:
         child.conn.send((build, start, deadline, mip_rel_gap, threads))
-        if child.conn.poll(max(time_limit, 0.0) * (1.0 + GRACE_SHARE) + GRACE_S):
+        if child.conn.poll(max(wall - time.monotonic(), 0.0)):
+            reply: MipAnswer | Exception
             reply, rss_kib = child.conn.recv()
             _peak_kib[0] = max(_peak_kib[0], rss_kib)
-            if isinstance(reply, Exception):
-                raise reply
-            return reply  # type: ignore[no-any-return]
-        log.warning("HiGHS ran past its %.1f s time limit and was stopped", time_limit)
-        answer = MipAnswer(None, highspy.HighsModelStatus.kTimeLimit, -math.inf)
+            if not isinstance(reply, Exception):
+                return reply
+        else:
+            log.warning("HiGHS ran past its %.1f s time limit and was stopped", time_limit)
+            reply = MipAnswer(None, highspy.HighsModelStatus.kTimeLimit, -math.inf)
     except (EOFError, OSError) as exc:  # the child died: killed for memory, or crashed
         log.warning("the HiGHS process ended without an answer (%s)", exc)
-        answer = _NONE
+        reply = _NONE
+    except BaseException:  # interrupted here: its answer must not reach the next call
+        _retire(child)
+        raise
+    if isinstance(reply, Exception):  # raised in the child, which stays usable
+        raise reply
     _retire(child)
-    return answer
+    return reply
 
 
 def solve_here(

@@ -40,7 +40,7 @@ from vpp_core.cover import (
     integral_costs,
 )
 from vpp_core.errors import SolverError
-from vpp_core.mip import solve_mip
+from vpp_core.mip import solve_mip, warm
 from vpp_core.reduce import row_groups, undominated_columns
 from vpp_core.setcover import CoverResult, closes_gap, solve_cover
 
@@ -103,6 +103,8 @@ def solve_partial(
             csr, c, method=method, time_limit=time_limit, mip_rel_gap=mip_rel_gap, threads=threads
         )
         return _outcome(csr, w, res, required)
+    if method == "milp":
+        warm()  # the HiGHS process starts while the rows are merged and greedy runs
     groups = _merged(csr, w, c)
     start = greedy_partial(groups.A, c[groups.cols], groups.w, required)
     if method == "greedy":

@@ -113,11 +113,13 @@ def solve_here(
         warm.col_value = np.asarray(start, dtype=np.float64).tolist()
         warm.value_valid = True
         run_highs(h, threads, lambda: h.setSolution(warm))
-        if not _contradicts(h, model):
-            return _answer(h)
+        answer = _answer(h)
+        if not _contradicts(answer, h, model):
+            return answer
         h = _mip_highs(model, deadline - time.perf_counter(), mip_rel_gap, threads)
     run_highs(h, threads)
-    return _NONE if _contradicts(h, model) else _answer(h)
+    answer = _answer(h)
+    return _NONE if _contradicts(answer, h, model) else answer
 
 
 def _answer(h: highspy.Highs) -> MipAnswer:
@@ -144,13 +146,11 @@ def _mip_highs(
     return h
 
 
-def _contradicts(h: highspy.Highs, model: highspy.HighsLp) -> bool:
+def _contradicts(answer: MipAnswer, h: highspy.Highs, model: highspy.HighsLp) -> bool:
     """HiGHS says "optimal", but the solution it returns costs more than its objective."""
-    if h.getModelStatus() != highspy.HighsModelStatus.kOptimal:
+    if answer.status != highspy.HighsModelStatus.kOptimal or answer.x is None:
         return False
-    if h.getInfo().primal_solution_status != _HIGHS_FEASIBLE:
-        return False
-    cost = float(np.dot(np.asarray(model.col_cost_), np.asarray(h.getSolution().col_value)))
+    cost = float(np.dot(np.asarray(model.col_cost_), answer.x))
     claimed = float(h.getInfo().objective_function_value)
     return cost > claimed + _OBJ_TOL * max(1.0, abs(claimed))
 

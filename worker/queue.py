@@ -120,8 +120,9 @@ def submit(
 def state(conn: Redis, store: Store, plan: str) -> JobState:
     """The job state of `plan`; NotFoundError when neither Redis nor the store knows it."""
     job = _fetch(conn, plan)
-    status = _status(job) if job is not None else None  # before the store: a job that ends
-    if any(store.exists(key) for key in art.done_keys(plan)):  # in between is found done
+    # the status is read before the store: a job that ends in between is then found done
+    status = _status(job) if job is not None else None
+    if any(store.exists(key) for key in art.done_keys(plan)):
         return _from_job(plan, "succeeded", {"stage": "done"}, job)
     if job is not None and status == "running":  # its worker may have died: sweep, look again
         StartedJobRegistry(job.origin, connection=conn).cleanup()

@@ -25,7 +25,7 @@ from vpp_core.packets import PacketBackend, library
 from vpp_core.pose import Viewpoints, make_viewpoints
 from vpp_core.raster import MAX_FACES_PER_PIXEL, RasterBackend
 from vpp_core.rays import Block
-from vpp_core.raytrace import _hull_points, _window, make_backend, trace_counts
+from vpp_core.raytrace import _hull_points, make_backend, trace_counts, view_windows
 from vpp_core.sensor import Sensor
 
 
@@ -136,7 +136,7 @@ def test_raster_hands_views_with_more_faces_than_pixels_to_packets() -> None:
     sensor = Sensor(width_px=64, height_px=40)
     views = make_viewpoints(np.array([[0.4, -0.3, 300.0]]), np.array([[0.0, 0.0, -1.0]]))
     hull = _hull_points(part.vertices)
-    v0, v1, u0, u1 = _window(sensor, views.positions[0], views.rotations()[0], hull)
+    ((v0, v1, u0, u1),) = view_windows(sensor, views, hull)
     assert part.n_faces > MAX_FACES_PER_PIXEL * (v1 - v0) * (u1 - u0)
     raster = RasterBackend(part)
     r = trace_counts(part, sensor, views, backend=raster).counts

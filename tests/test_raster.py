@@ -17,7 +17,7 @@ from vpp_core.plan import plan
 from vpp_core.pose import Viewpoints, make_viewpoints
 from vpp_core.raster import RasterBackend, pixel_scale, view_first_hits
 from vpp_core.rays import Block
-from vpp_core.raytrace import _hull_points, _window, make_backend, trace_counts
+from vpp_core.raytrace import _hull_points, make_backend, trace_counts, view_windows
 from vpp_core.sensor import Sensor
 
 PAPER = Sensor()
@@ -125,8 +125,7 @@ def compare_views(
     hull = _hull_points(part.vertices)
     hits, bad, worst = 0, 0, 0.0
     touched = np.zeros((part.n_faces + 1, len(views)), dtype=np.int64)  # last row: misses
-    for j in range(len(views)):
-        window = _window(sensor, views.positions[j], views.rotations()[j], hull)
+    for j, window in enumerate(view_windows(sensor, views, hull)):
         a = ids_of(j, window)
         b = embree_ids(embree, sensor, views, j, window)
         rep = np.append(part.representative, -1)  # duplicates of a face count as that face

@@ -232,7 +232,7 @@ class PacketBackend:
     def _take_counters(self) -> tuple[np.ndarray, np.ndarray]:
         """A per-face counter (M,) int32 and its marks per GROUP faces (ceil(M / GROUP),)
         uint8, all zero: kept across calls and threads (fresh pages would fault on every
-        trace: a pool's threads are new each time)."""
+        call)."""
         with self._lock:
             if self._idle:
                 return self._idle.pop()

@@ -2,16 +2,19 @@
 
 Only the pixels inside the image of the part's hull are traced (the rest cannot hit); each
 view is split into blocks of rows as its backend likes them (`vpp_core.rays`), the blocks run
-on a thread pool, and a view's column of R is reduced as soon as its last block is in.
+on the process's thread pool (started once; a forked child starts its own), and a view's
+column of R is reduced as soon as its last block is in.
 """
 
 from __future__ import annotations
 
 import os
+import threading
 import time
 from collections import deque
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Generator, Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
+from contextlib import closing
 from dataclasses import dataclass
 from typing import get_args
 from weakref import WeakKeyDictionary
@@ -96,8 +99,7 @@ def trace_counts(
     start = time.perf_counter()
     backend = backend or make_backend(part)
     rotations = views.rotations()
-    hull = part_hull(part) if cull else None
-    windows = [_window(sensor, views.positions[j], rotations[j], hull) for j in range(len(views))]
+    windows = view_windows(sensor, views, part_hull(part) if cull else None)
     tasks = [c for j, w in enumerate(windows) for c in _chunks(j, *w, backend.block_rays)]
     tasks.sort(key=lambda c: -c.size)
     empty = (np.empty(0, np.int32), np.empty(0, np.int32))
@@ -113,8 +115,8 @@ def trace_counts(
         return backend.valid_hits(block)
 
     workers = threads or _cpu_count()
-    with ThreadPoolExecutor(workers) as pool:
-        for chunk, hits in zip(tasks, _bounded_map(pool, work, tasks, 2 * workers), strict=True):
+    with closing(_bounded_map(_pool(workers), work, tasks, 2 * workers)) as results:
+        for chunk, hits in zip(tasks, results, strict=True):
             pending.setdefault(chunk.view, []).append(hits)
             left[chunk.view] -= 1
             if left[chunk.view] == 0:  # reduce at once: memory grows with nnz(R), not rays
@@ -131,10 +133,8 @@ def view_blocks(
     part: Part, sensor: Sensor, views: Viewpoints, block_rays: int
 ) -> Iterator[tuple[int, Block]]:
     """(view index, Block) over each view's pixels that can reach the part, view after view."""
-    hull = part_hull(part)
     rotations = views.rotations()
-    for j in range(len(views)):
-        window = _window(sensor, views.positions[j], rotations[j], hull)
+    for j, window in enumerate(view_windows(sensor, views, part_hull(part))):
         for c in _chunks(j, *window, block_rays):
             yield j, Block(sensor, views.positions[j], rotations[j], c.rows, c.cols)
 
@@ -182,21 +182,46 @@ def _hull_points(vertices: np.ndarray) -> np.ndarray:
         return np.asarray(corners)
 
 
-def _window(
-    sensor: Sensor, position: np.ndarray, rotation: np.ndarray, hull: np.ndarray | None
-) -> tuple[int, int, int, int]:
-    """Pixel rows v0:v1 and columns u0:u1 whose rays can hit the part (exact: its hull's image)."""
-    full = (0, sensor.height_px, 0, sensor.width_px)
+def view_windows(
+    sensor: Sensor, views: Viewpoints, hull: np.ndarray | None
+) -> list[tuple[int, int, int, int]]:
+    """Per view, pixel rows v0:v1 and columns u0:u1 whose rays can hit the part (exact: the
+    image of its hull, (h, 3) points; None: the whole frame), WINDOW_VIEWS views at a time."""
     if hull is None:
-        return full
-    cam = (hull - position) @ rotation
-    if (cam[:, 2] <= 1e-6).any():
-        return full
-    u = cam[:, 0] / cam[:, 2] * sensor.fx + sensor.width_px / 2 - 0.5
-    v = cam[:, 1] / cam[:, 2] * sensor.fy + sensor.height_px / 2 - 0.5
-    u0, u1 = np.clip([np.floor(u.min()) - 1, np.ceil(u.max()) + 2], 0, sensor.width_px)
-    v0, v1 = np.clip([np.floor(v.min()) - 1, np.ceil(v.max()) + 2], 0, sensor.height_px)
-    return int(v0), int(v1), int(u0), int(u1)
+        return [(0, sensor.height_px, 0, sensor.width_px)] * len(views)
+    rotations = views.rotations()
+    return [
+        w
+        for s in range(0, len(views), WINDOW_VIEWS)
+        for w in _windows(
+            sensor, views.positions[s : s + WINDOW_VIEWS], rotations[s : s + WINDOW_VIEWS], hull
+        )
+    ]
+
+
+WINDOW_VIEWS = 256
+"""Views projected together by view_windows: (views, hull points, 3) floats at a time."""
+
+
+def _windows(
+    sensor: Sensor, positions: np.ndarray, rotations: np.ndarray, hull: np.ndarray
+) -> list[tuple[int, int, int, int]]:
+    """view_windows of cameras at positions (n, 3) mm turned by rotations (n, 3, 3)."""
+    cam = (hull[None, :, :] - positions[:, None, :]) @ rotations  # (n, h, 3) camera frames
+    z = cam[:, :, 2]
+    behind = (z <= 1e-6).any(axis=1)  # the camera inside the hull: every pixel may hit
+    z = np.where(behind[:, None], 1.0, z)
+    u = cam[:, :, 0] / z * sensor.fx + sensor.width_px / 2 - 0.5
+    v = cam[:, :, 1] / z * sensor.fy + sensor.height_px / 2 - 0.5
+    u0 = np.clip(np.floor(u.min(axis=1)) - 1, 0, sensor.width_px).astype(int)
+    u1 = np.clip(np.ceil(u.max(axis=1)) + 2, 0, sensor.width_px).astype(int)
+    v0 = np.clip(np.floor(v.min(axis=1)) - 1, 0, sensor.height_px).astype(int)
+    v1 = np.clip(np.ceil(v.max(axis=1)) + 2, 0, sensor.height_px).astype(int)
+    full = (0, sensor.height_px, 0, sensor.width_px)
+    return [
+        full if behind[j] else (int(v0[j]), int(v1[j]), int(u0[j]), int(u1[j]))
+        for j in range(len(positions))
+    ]
 
 
 def _column(hits: list[Hits], representative: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -235,15 +260,45 @@ def _chunks(view: int, v0: int, v1: int, u0: int, u1: int, size: int) -> Iterato
 
 def _bounded_map(
     pool: ThreadPoolExecutor, fn: Callable[[_Chunk], Hits], items: list[_Chunk], window: int
-) -> Iterator[Hits]:
-    """pool.map in order, with at most `window` tasks in flight (bounded memory)."""
+) -> Generator[Hits, None, None]:
+    """pool.map in order, with at most `window` tasks in flight (bounded memory); the tasks
+    not yet started are cancelled if the caller stops early (the pool outlives the trace)."""
     futures: deque[Future[Hits]] = deque()
-    for item in items:
-        futures.append(pool.submit(fn, item))
-        if len(futures) >= window:
+    try:
+        for item in items:
+            futures.append(pool.submit(fn, item))
+            if len(futures) >= window:
+                yield futures.popleft().result()
+        while futures:
             yield futures.popleft().result()
-    for future in futures:
-        yield future.result()
+    finally:
+        for future in futures:
+            future.cancel()
+
+
+_POOLS: dict[int, ThreadPoolExecutor] = {}
+_POOLS_LOCK = threading.Lock()
+
+
+def _pool(workers: int) -> ThreadPoolExecutor:
+    """The process's pool of `workers` tracing threads, started once: a trace of a few small
+    views takes milliseconds, of which starting threads would be several percent."""
+    with _POOLS_LOCK:
+        pool = _POOLS.get(workers)
+        if pool is None:
+            pool = _POOLS[workers] = ThreadPoolExecutor(workers, thread_name_prefix="vpp-trace")
+        return pool
+
+
+def _forget_pools() -> None:
+    """In a forked child: the parent's pool threads do not exist here."""
+    global _POOLS_LOCK
+    _POOLS.clear()
+    _POOLS_LOCK = threading.Lock()
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_forget_pools)
 
 
 def _cpu_count() -> int:

@@ -14,7 +14,7 @@ import scipy.sparse as sp
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from vpp_core import setcover
+from vpp_core import mip, setcover
 from vpp_core.errors import SolverError
 from vpp_core.lpbound import LpBound
 from vpp_core.orlib import parse_orlib
@@ -312,9 +312,9 @@ TINY_COSTS = np.array([1.0, 1.0, 3.0])  # optimum {0, 1} = 2, also the greedy's 
 
 def fake_highs(monkeypatch: pytest.MonkeyPatch, sel: list[int], status: str, bound: float) -> None:
     """Make solve_cover see HiGHS return `sel` with model `status` and dual `bound`."""
-    outcome = setcover._MipOutcome(
-        np.array(sel, dtype=np.int64), getattr(highspy.HighsModelStatus, status), bound
-    )
+    x = np.zeros(TINY.shape[1])
+    x[sel] = 1.0
+    outcome = mip.MipAnswer(x, getattr(highspy.HighsModelStatus, status), bound)
     monkeypatch.setattr(setcover, "_run_highs", lambda *args, **kwargs: outcome)
     everything = lambda A, *args: np.ones(A.shape[1], dtype=bool)  # noqa: E731
     monkeypatch.setattr(setcover, "core_columns", everything)  # no core run, no column fixed
@@ -357,8 +357,9 @@ def test_highs_answer_that_contradicts_itself_is_not_trusted(seed: int) -> None:
     A, costs, _ = random_cover_model(seed)
     best = fewest_columns(A.toarray())
     out = setcover._run_highs(A, costs, greedy_cover(A, costs), 5.0, 0.0, None)
-    assert out.selected is not None and is_cover(A, out.selected)
-    assert costs[out.selected].sum() == best
+    assert out.x is not None
+    selected = np.flatnonzero(out.x > 0.5)
+    assert is_cover(A, selected) and costs[selected].sum() == best
     assert best - 1e-6 <= out.dual_bound <= best + 1e-9
     result = solve_cover(A, costs, time_limit=5)
     assert (result.status, result.objective, result.bound) == ("optimal", best, best)

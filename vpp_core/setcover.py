@@ -98,15 +98,6 @@ def _trivial_bound(A: sp.csr_array, costs: np.ndarray) -> float:
 # ---------------------------------------------------------------------------- HiGHS
 
 
-@dataclass(frozen=True)
-class _MipOutcome:
-    """What HiGHS returned: its selection (or None), model status and dual bound."""
-
-    selected: np.ndarray | None
-    model_status: highspy.HighsModelStatus
-    dual_bound: float
-
-
 def _run_highs(
     A: sp.csr_array,
     costs: np.ndarray,
@@ -114,12 +105,10 @@ def _run_highs(
     time_limit: float,
     mip_rel_gap: float,
     threads: int | None,
-) -> _MipOutcome:
+) -> mip.MipAnswer:
     """Solve the cover of A (M, N) with HiGHS, warm-started from the cover `start` (K,)."""
     model = partial(highs_model, A, costs, integer=True)
-    h = mip.solve_mip(model, indicator(A.shape[1], start), time_limit, mip_rel_gap, threads)
-    selected = None if h.x is None else np.flatnonzero(h.x > 0.5).astype(np.int64)
-    return _MipOutcome(selected, h.status, h.dual_bound)
+    return mip.solve_mip(model, indicator(A.shape[1], start), time_limit, mip_rel_gap, threads)
 
 
 # ---------------------------------------------------------------------------- driver
@@ -187,14 +176,13 @@ class _Search:
         )
         self.offer(found)
 
-    def mip(self, keep: np.ndarray, time_limit: float, gap: float) -> _MipOutcome:
+    def mip(self, keep: np.ndarray, time_limit: float, gap: float) -> mip.MipAnswer:
         """HiGHS on the columns `keep` (n,) bool (which must hold the incumbent)."""
         cols = np.flatnonzero(keep)
         start = np.flatnonzero(np.isin(cols, self.best))
         out = _run_highs(self.A[:, cols], self.costs[cols], start, time_limit, gap, self.threads)
-        cover, repaired = _verified(
-            self.A, self.costs, None if out.selected is None else cols[out.selected]
-        )
+        selected = None if out.x is None else cols[np.flatnonzero(out.x > 0.5)]
+        cover, repaired = _verified(self.A, self.costs, selected)
         self.offer(cover)
         self.repaired |= repaired  # HiGHS's answer broke a row: its bound is not trusted
         return out
@@ -229,7 +217,7 @@ def _exact(S: _Search, lp: LpBound, time_limit: float, mip_rel_gap: float) -> No
     keep = columns_worth_keeping(lp, S.objective, 1.0 if S.integral else 0.0)
     keep[S.best] = True
     out = S.mip(keep, time_limit, mip_rel_gap)
-    S.mip_status = out.model_status
+    S.mip_status = out.status
     if not S.repaired:  # the kept columns hold every cheaper cover
         S.bound = max(S.bound, min(out.dual_bound, S.objective))
 

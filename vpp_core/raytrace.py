@@ -100,6 +100,7 @@ def trace_counts(
     backend = backend or make_backend(part)
     rotations = views.rotations()
     windows = view_windows(sensor, views, part_hull(part) if cull else None)
+    duplicates = part.representative if has_duplicates(part) else None
     tasks = [c for j, w in enumerate(windows) for c in _chunks(j, *w, backend.block_rays)]
     tasks.sort(key=lambda c: -c.size)
     empty = (np.empty(0, np.int32), np.empty(0, np.int32))
@@ -120,7 +121,7 @@ def trace_counts(
             pending.setdefault(chunk.view, []).append(hits)
             left[chunk.view] -= 1
             if left[chunk.view] == 0:  # reduce at once: memory grows with nnz(R), not rays
-                columns[chunk.view] = _column(pending.pop(chunk.view), part.representative)
+                columns[chunk.view] = _column(pending.pop(chunk.view), part.n_faces, duplicates)
                 if progress:
                     progress(1)
     counts = _assemble(columns, part.n_faces)
@@ -148,6 +149,18 @@ def part_hull(part: Part) -> np.ndarray:
     if hull is None:
         hull = _HULLS[part] = _hull_points(part.vertices)
     return hull
+
+
+_DUPLICATES: WeakKeyDictionary[Part, bool] = WeakKeyDictionary()
+
+
+def has_duplicates(part: Part) -> bool:
+    """Whether some face of the part duplicates an earlier one, computed once per Part object."""
+    dup = _DUPLICATES.get(part)
+    if dup is None:
+        own = np.arange(part.n_faces, dtype=part.representative.dtype)
+        dup = _DUPLICATES[part] = bool((part.representative != own).any())
+    return dup
 
 
 HULL_CELLS = 32
@@ -224,30 +237,38 @@ def _windows(
     ]
 
 
-def _column(hits: list[Hits], representative: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _column(
+    hits: list[Hits], n_faces: int, representative: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray]:
     """One view's (faces hit, valid-ray counts), both (k,) int32, faces ascending, from its
-    blocks' hits; duplicate faces counted on their representative."""
-    faces = representative.take(np.concatenate([f for f, _ in hits]))
+    blocks' hits; duplicate faces counted on their representative (None: there are none)."""
+    ids = [f for f, _ in hits]
+    faces = ids[0] if len(ids) == 1 else np.concatenate(ids)
+    if representative is not None:
+        faces = representative.take(faces)
     if all(c is None for _, c in hits):  # one id per ray: O(M + rays) beats sorting rays
-        counts = np.bincount(faces, minlength=len(representative))
-        nz = np.flatnonzero(counts)
-        return nz.astype(np.int32), counts[nz].astype(np.int32)
-    counts = np.concatenate([np.ones(len(f), np.int32) if c is None else c for f, c in hits])
+        per_face = np.bincount(faces, minlength=n_faces)
+        nz = np.flatnonzero(per_face)
+        return nz.astype(np.int32), per_face[nz].astype(np.int32)
+    per: list[np.ndarray] = [np.ones(len(f), np.int32) if c is None else c for f, c in hits]
+    counts = per[0] if len(per) == 1 else np.concatenate(per)
     if len(hits) > 1 or not (faces[1:] > faces[:-1]).all():  # merge: O(k log k), not O(M)
         order = np.argsort(faces, kind="stable")  # runs of sorted blocks: a cheap merge
         faces, counts = faces[order], counts[order]
         starts = np.flatnonzero(np.r_[True, faces[1:] != faces[:-1]])
         faces, counts = faces[starts], np.add.reduceat(counts, starts)
-    return faces.astype(np.int32), counts.astype(np.int32)
+    return faces.astype(np.int32, copy=False), counts.astype(np.int32, copy=False)
 
 
 def _assemble(columns: list[tuple[np.ndarray, np.ndarray]], n_faces: int) -> sp.csc_array:
-    """(M, N) int32 csc count matrix from each view's (faces, counts)."""
-    indptr = np.zeros(len(columns) + 1, dtype=np.int64)
-    indptr[1:] = np.cumsum([len(f) for f, _ in columns])
+    """(M, N) int32 csc count matrix from each view's (faces, counts); int32 indices while
+    the entries fit them (half the memory of int64)."""
+    sizes = [len(f) for f, _ in columns]
+    indptr = np.zeros(len(columns) + 1, dtype=np.int32 if sum(sizes) < 2**31 else np.int64)
+    np.cumsum(sizes, out=indptr[1:])
     indices = np.concatenate([f for f, _ in columns] or [np.empty(0, np.int32)])
     data = np.concatenate([c for _, c in columns] or [np.empty(0, np.int32)])
-    return sp.csc_array((data, indices, indptr), shape=(n_faces, len(columns)))
+    return sp.csc_array((data, indices.astype(indptr.dtype), indptr), shape=(n_faces, len(columns)))
 
 
 def _chunks(view: int, v0: int, v1: int, u0: int, u1: int, size: int) -> Iterator[_Chunk]:

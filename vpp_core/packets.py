@@ -432,4 +432,4 @@ def _collect(counts: np.ndarray, marks: np.ndarray, most: int) -> tuple[np.ndarr
                     hit[k], hits[k] = f, counts[f]
                     counts[f] = 0
                     k += 1
-    return hit[:k], hits[:k]
+    return hit[:k].copy(), hits[:k].copy()  # compact: R's columns keep these until assembly

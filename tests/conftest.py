@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from vpp_core.mesh import Part, part_from_arrays
+from vpp_core.pose import Viewpoints, make_viewpoints
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared"
@@ -64,6 +65,12 @@ def plate_part(**kw: float) -> Part:
     """A plate as a Part (mm)."""
     v, f = plate(**kw)
     return part_from_arrays(v, f)
+
+
+def look_down(*positions: tuple[float, float, float]) -> Viewpoints:
+    """Viewpoints at `positions` (mm) gazing along -Z."""
+    pos = np.array(positions, dtype=float)
+    return make_viewpoints(pos, np.tile([0.0, 0.0, -1.0], (len(pos), 1)))
 
 
 @pytest.fixture

@@ -7,10 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from tests.conftest import plate_part
+from tests.conftest import look_down, plate_part
 from vpp_core.density import density_matrix
 from vpp_core.mesh import part_from_arrays
-from vpp_core.pose import make_viewpoints
 from vpp_core.raytrace import trace_counts
 from vpp_core.sensor import Sensor
 
@@ -27,12 +26,6 @@ def backend(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> 
 def counts(*args, **kw):
     """R of a trace (M, N) int32."""
     return trace_counts(*args, **kw).counts
-
-
-def look_down(*positions: tuple[float, float, float]):
-    """Viewpoints at `positions` gazing along -Z."""
-    pos = np.array(positions, dtype=float)
-    return make_viewpoints(pos, np.tile([0.0, 0.0, -1.0], (len(pos), 1)))
 
 
 def analytic_plate_count(sensor: Sensor, depth: float, side: float) -> int:

@@ -268,7 +268,9 @@ def _assemble(columns: list[tuple[np.ndarray, np.ndarray]], n_faces: int) -> sp.
     np.cumsum(sizes, out=indptr[1:])
     indices = np.concatenate([f for f, _ in columns] or [np.empty(0, np.int32)])
     data = np.concatenate([c for _, c in columns] or [np.empty(0, np.int32)])
-    return sp.csc_array((data, indices.astype(indptr.dtype), indptr), shape=(n_faces, len(columns)))
+    return sp.csc_array(
+        (data, indices.astype(indptr.dtype, copy=False), indptr), shape=(n_faces, len(columns))
+    )
 
 
 def _chunks(view: int, v0: int, v1: int, u0: int, u1: int, size: int) -> Iterator[_Chunk]:

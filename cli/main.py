@@ -15,7 +15,6 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from cli import serve
 from vpp_core.document import (
     CandidateGenerator,
     PlanDocument,
@@ -26,7 +25,6 @@ from vpp_core.document import (
 from vpp_core.errors import VppError
 from vpp_core.mesh import UNITS_TO_MM, Part, load_mesh
 from vpp_core.plan import plan
-from vpp_core.plots import plan_plots, study_plots
 from vpp_core.pointcloud import CloudStats, simulate_plan, write_ply
 from vpp_core.rays import DEFAULT_BACKEND
 from vpp_core.raytrace import BACKENDS
@@ -110,13 +108,27 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument(
         "--workers", type=_positive_int, help="local workers (embedded mode; default VPP_WORKERS)"
     )
-    s.set_defaults(run=serve.run_serve)
+    s.set_defaults(run=_run_serve)
     w = sub.add_parser("worker", help="run workers on the queue at VPP_REDIS_URL")
     w.add_argument("--url", help="Redis URL (default: VPP_REDIS_URL)")
     w.add_argument("--workers", type=_positive_int, help="worker processes (default VPP_WORKERS)")
     w.add_argument("--burst", action="store_true", help="exit when the queue is empty")
-    w.set_defaults(run=serve.run_workers)
+    w.set_defaults(run=_run_workers)
     return parser
+
+
+def _run_serve(args: argparse.Namespace) -> int:
+    """`vpp serve`; the service is imported only here, so that `vpp plan` starts faster."""
+    from cli import serve
+
+    return serve.run_serve(args)
+
+
+def _run_workers(args: argparse.Namespace) -> int:
+    """`vpp worker`; the worker pool is imported only here."""
+    from cli import serve
+
+    return serve.run_workers(args)
 
 
 def _plan_options(p: argparse.ArgumentParser) -> None:
@@ -207,6 +219,8 @@ def run_plan(args: argparse.Namespace) -> int:
         print(f"plan written to {args.output}")
     stats = _point_cloud(args, part, doc, settings.max_cloud_points, threads)
     if args.plots:
+        from vpp_core.plots import plan_plots  # matplotlib: imported only when plots are asked
+
         files = {"plan.json": text.encode(), **plan_plots(part, doc, stats)}
         if stats is not None:
             files["point-cloud.json"] = stats.model_dump_json(indent=1).encode()
@@ -261,6 +275,8 @@ def run_study(args: argparse.Namespace) -> int:
         _write(args.csv, study_csv(study))
         print(f"rows written to {args.csv}")
     if args.plots:
+        from vpp_core.plots import study_plots
+
         data = {"study.json": text.encode(), "study.csv": study_csv(study).encode()}
         _write_all(args.plots, {**data, **study_plots(study)})
     return 0

@@ -297,3 +297,12 @@ def test_bad_study_options_fail_with_one_line_and_exit_2(plate_files, args, matc
     run = vpp("study", args[0], mesh, "-q", *args[1:])
     assert run.returncode == 2
     assert match in run.stderr and len(run.stderr.strip().splitlines()) == 1, run.stderr
+
+
+def test_plan_command_does_not_import_the_service_or_matplotlib():
+    """`vpp plan` starts without the web stack and plotting (about 0.9 s of imports)."""
+    heavy = "('service.app', 'uvicorn', 'rq', 'matplotlib')"
+    code = f"import sys, cli.main; print(sorted(m for m in {heavy} if m in sys.modules))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "[]"

@@ -1,14 +1,20 @@
 """Benchmark the set-cover solvers; one JSON line per instance and solver (stdout).
 
-    python bench/setcover.py FILE... [--solver milp|greedy|both] [--time-limit S] [--threads T]
+    python bench/setcover.py FILE... [--solver milp|greedy|highs|both] [--time-limit S]
+                             [--threads T]
     python bench/setcover.py --mesh [MESH...] [--candidates 500 2000]
-                             [--formulation density visibility] [...]
+                             [--formulation density visibility] [--save DIR] [...]
     python bench/setcover.py --synthetic ROWSxCOLS [--binary] [--seed K] [--lp] [...]
 
 FILE: OR-Library SCP files; `best_known` comes from `optima.csv` beside them (null when absent).
+A FILE ending in .npz is an instance saved with --save (unit costs).
 --mesh: viewpoint instances built from real meshes (every mesh of ../shared/meshes without
 MESH; units from its MANIFEST.csv) with the paper's camera and the default target, one per
-candidate count and formulation; the trace is made once per mesh and count.
+candidate count and formulation; the trace is made once per mesh and count. --save DIR
+writes each instance's matrix to DIR/<mesh>_<count>_<formulation>.npz as it is built.
+--solver highs: the reference of HiGHS alone (`scipy.optimize.milp`, one uninterrupted run)
+on the model `vpp_core.reduce.reduce_cover` leaves, its fixed columns added to the objective
+and the bound; `both` is greedy and milp.
 --synthetic: the viewpoint-like window instance of `vpp_core.samples.window_cover`; with
 --lp the LP relaxation is also solved on its own (HiGHS interior point), so that the
 solver's bound can be compared with it (`lp` in the line).
@@ -31,6 +37,7 @@ from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.optimize import Bounds, LinearConstraint, milp
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -46,9 +53,10 @@ from vpp_core.mip import child_peak_rss_mib  # noqa: E402
 from vpp_core.orlib import parse_orlib  # noqa: E402
 from vpp_core.plan import candidates_for  # noqa: E402
 from vpp_core.raytrace import make_backend, trace_counts  # noqa: E402
+from vpp_core.reduce import reduce_cover  # noqa: E402
 from vpp_core.samples import window_cover  # noqa: E402
 from vpp_core.sensor import make_sensor  # noqa: E402
-from vpp_core.setcover import solve_cover  # noqa: E402
+from vpp_core.setcover import CoverResult, solve_cover  # noqa: E402
 
 Instance = tuple[str, Any, np.ndarray | None, float | None, float]  # name, A, costs, known, s
 
@@ -65,12 +73,24 @@ def best_known(path: Path) -> float | None:
     return None
 
 
-def orlib_instances(files: list[Path]) -> Iterator[Instance]:
-    """OR-Library files as instances."""
+def file_instances(files: list[Path]) -> Iterator[Instance]:
+    """OR-Library files (or .npz instances saved with --save) as instances."""
     for path in files:
         t0 = time.perf_counter()
+        if path.suffix == ".npz":
+            yield path.stem, sp.load_npz(path), None, None, time.perf_counter() - t0
+            continue
         A, costs = parse_orlib(path.read_text())
         yield path.stem, A, costs, best_known(path), time.perf_counter() - t0
+
+
+def saved(instances: Iterator[Instance], folder: Path | None) -> Iterator[Instance]:
+    """The instances, each also written to folder/<name>.npz when a folder is given."""
+    for inst in instances:
+        if folder is not None:
+            folder.mkdir(parents=True, exist_ok=True)
+            sp.save_npz(folder / f"{inst[0].replace('/', '_')}.npz", sp.csr_matrix(inst[1]))
+        yield inst
 
 
 def mesh_instances(
@@ -112,10 +132,34 @@ def peak_rss_mib() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0 + child_peak_rss_mib()
 
 
+def highs_alone(A: Any, costs: np.ndarray | None, time_limit: float) -> CoverResult:
+    """The reference: one HiGHS run (scipy's `milp`) on the reduced model, fixed columns added."""
+    t0 = time.perf_counter()
+    csr = sp.csr_array(A, dtype=np.float64)
+    c = np.ones(csr.shape[1]) if costs is None else np.asarray(costs, dtype=np.float64)
+    red = reduce_cover(csr, c)
+    R, cr, fixed = red.matrix, c[red.columns], float(c[red.fixed].sum())
+    res = milp(cr, constraints=LinearConstraint(R, lb=np.ones(R.shape[0]), ub=np.inf),
+               integrality=np.ones(R.shape[1]), bounds=Bounds(0, 1),
+               options={"time_limit": time_limit})  # fmt: skip
+    picked = np.zeros(0, np.int64) if res.x is None else np.flatnonzero(res.x > 0.5)
+    objective = fixed + float(cr[picked].sum()) if res.x is not None else np.nan
+    bound = fixed + float(getattr(res, "mip_dual_bound", np.nan))
+    status = "optimal" if res.status == 0 else "time_limit" if res.status == 1 else res.message
+    gap = (objective - bound) / objective if objective > 0 else None
+    selected = np.union1d(red.fixed, red.columns[picked]).astype(np.int64)
+    elapsed = time.perf_counter() - t0
+    return CoverResult(selected, "highs", status, objective, bound, gap, elapsed,
+                       R.shape[0], R.shape[1])  # fmt: skip
+
+
 def run(inst: Instance, solver: str, args: argparse.Namespace) -> dict[str, Any]:
     """Solve one instance with one solver; the JSON line as a dict."""
     name, A, costs, known, build_s = inst
-    res = solve_cover(A, costs, method=solver, time_limit=args.time_limit, threads=args.threads)
+    if solver == "highs":
+        res = highs_alone(A, costs, args.time_limit)
+    else:
+        res = solve_cover(A, costs, method=solver, time_limit=args.time_limit, threads=args.threads)
     return {
         "instance": name,
         "solver": res.solver,
@@ -157,7 +201,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--lp", action="store_true", help="also solve the LP relaxation on its own")
     ap.add_argument("--time-limit", type=float, default=60.0, help="seconds per solve")
-    ap.add_argument("--solver", choices=["milp", "greedy", "both"], default="both")
+    ap.add_argument("--solver", choices=["milp", "greedy", "highs", "both"], default="both")
+    ap.add_argument("--save", type=Path, metavar="DIR", help="write each instance as .npz")
     ap.add_argument("--threads", type=int, default=None, help="HiGHS threads (default: HiGHS)")
     args = ap.parse_args(argv)
     solvers = ["greedy", "milp"] if args.solver == "both" else [args.solver]
@@ -170,8 +215,8 @@ def main(argv: list[str] | None = None) -> int:
             return 0
         instances = mesh_instances(meshes, args.candidates, args.formulation)
     else:
-        instances = orlib_instances(args.files)
-    for inst in instances:
+        instances = file_instances(args.files)
+    for inst in saved(instances, args.save):
         for solver in solvers:
             print(json.dumps(run(inst, solver, args)), flush=True)
         if args.lp:

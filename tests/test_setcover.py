@@ -404,6 +404,27 @@ def test_worse_highs_incumbent_loses_to_greedy(monkeypatch: pytest.MonkeyPatch) 
     assert (res.selected.tolist(), res.status, res.objective) == ([0, 1], "time_limit", 2.0)
 
 
+@pytest.mark.parametrize("bound, one_run", [(3.0, True), (2.0, False)])
+def test_gap_of_one_unit_after_the_quick_run_goes_to_one_highs_run(
+    monkeypatch: pytest.MonkeyPatch, bound: float, one_run: bool
+) -> None:
+    # Costs 2, 2, 6: greedy and optimum cost 4. A quick HiGHS run that leaves bound 3 leaves
+    # one unit: the rest of the time goes to one HiGHS run, not to the search and a restart.
+    fake_highs(monkeypatch, [0, 1], "kTimeLimit", bound)
+    calls: list[tuple[object, float]] = []  # (start, time limit) of each HiGHS run
+    answer = setcover._run_highs(TINY, TINY_COSTS, np.zeros(0, np.int64), 1.0, 0.0, None)  # faked
+    monkeypatch.setattr(setcover, "_run_highs", lambda *a, **k: calls.append(a[2:4]) or answer)
+    walks: list[float] = []
+    monkeypatch.setattr(setcover._Search, "walk", lambda self, deadline, *a: walks.append(deadline))
+    res = solve_cover(TINY, TINY_COSTS * 2, time_limit=60)
+    assert (res.objective, res.bound, res.status) == (4.0, bound, "time_limit")
+    if one_run:
+        assert walks == [] and len(calls) == 2 and calls[1][1] > 5 * calls[0][1] > 0
+        assert calls[0][0] is not None and calls[1][0] is None  # the long run starts cold
+    else:
+        assert len(walks) == 1
+
+
 # ---------------------------------------------------------------------------- OR-Library parser
 
 

@@ -101,14 +101,15 @@ def _trivial_bound(A: sp.csr_array, costs: np.ndarray) -> float:
 def _run_highs(
     A: sp.csr_array,
     costs: np.ndarray,
-    start: np.ndarray,
+    start: np.ndarray | None,
     time_limit: float,
     mip_rel_gap: float,
     threads: int | None,
 ) -> mip.MipAnswer:
-    """Solve the cover of A (M, N) with HiGHS, warm-started from the cover `start` (K,)."""
+    """Solve the cover of A (M, N) with HiGHS, warm-started from the cover `start` (K,) if any."""
     model = partial(highs_model, A, costs, integer=True)
-    return mip.solve_mip(model, indicator(A.shape[1], start), time_limit, mip_rel_gap, threads)
+    x0 = None if start is None else indicator(A.shape[1], start)
+    return mip.solve_mip(model, x0, time_limit, mip_rel_gap, threads)
 
 
 # ---------------------------------------------------------------------------- driver
@@ -176,10 +177,13 @@ class _Search:
         )
         self.offer(found)
 
-    def mip(self, keep: np.ndarray, time_limit: float, gap: float) -> mip.MipAnswer:
-        """HiGHS on the columns `keep` (n,) bool (which must hold the incumbent)."""
+    def mip(
+        self, keep: np.ndarray, time_limit: float, gap: float, warm: bool = True
+    ) -> mip.MipAnswer:
+        """HiGHS on the columns `keep` (n,) bool (which must hold the incumbent), started from
+        the incumbent when `warm`."""
         cols = np.flatnonzero(keep)
-        start = np.flatnonzero(np.isin(cols, self.best))
+        start = np.flatnonzero(np.isin(cols, self.best)) if warm else None
         out = _run_highs(self.A[:, cols], self.costs[cols], start, time_limit, gap, self.threads)
         selected = None if out.x is None else cols[np.flatnonzero(out.x > 0.5)]
         cover, repaired = _verified(self.A, self.costs, selected)
@@ -190,7 +194,7 @@ class _Search:
 
 def _search(S: _Search, mip_rel_gap: float) -> None:
     """LP bound, a quick exact try, the row-weighting search, HiGHS on a core, then HiGHS on
-    what can win."""
+    what can win (at once, when the quick try left the gap at one unit)."""
     lp = lp_bound(S.A, S.costs, S.left(LP_SHARE), S.threads)
     S.bound = max(S.bound, lp.bound)
     if S.closed():
@@ -200,6 +204,12 @@ def _search(S: _Search, mip_rel_gap: float) -> None:
         return
     _exact(S, lp, S.left(QUICK_SHARE), mip_rel_gap)
     if S.closed() or S.mip_status == highspy.HighsModelStatus.kOptimal:
+        return
+    if S.integral and closes_gap(S.bound + 1.0, S.objective, True)[1]:
+        # One unit short: only the proof, or a cover one unit cheaper, is missing. HiGHS
+        # looks for both; restarting its tree after the search would throw its work away.
+        # Cold: started from a near-optimal cover HiGHS proved more slowly (docs/setcover.md).
+        _exact(S, lp, S.left(), mip_rel_gap, warm=False)
         return
     S.walk(time.perf_counter() + S.left(SEARCH_SHARE), SEARCH_PATIENCE * S.A.shape[1])
     if S.closed():
@@ -212,11 +222,13 @@ def _search(S: _Search, mip_rel_gap: float) -> None:
         _exact(S, lp, S.left(), mip_rel_gap)
 
 
-def _exact(S: _Search, lp: LpBound, time_limit: float, mip_rel_gap: float) -> None:
+def _exact(
+    S: _Search, lp: LpBound, time_limit: float, mip_rel_gap: float, warm: bool = True
+) -> None:
     """HiGHS on the columns that can still beat the incumbent; its bound then holds for A."""
     keep = columns_worth_keeping(lp, S.objective, 1.0 if S.integral else 0.0)
     keep[S.best] = True
-    out = S.mip(keep, time_limit, mip_rel_gap)
+    out = S.mip(keep, time_limit, mip_rel_gap, warm)
     S.mip_status = out.status
     if not S.repaired:  # the kept columns hold every cheaper cover
         S.bound = max(S.bound, min(out.dual_bound, S.objective))

@@ -60,9 +60,9 @@ def start_worker(
 
 
 class WorkerPool:
-    """`count` worker processes kept running: one that is killed or exits with an error is
-    started again (under a new name) at the next `check`; one that exits 0 (--burst done, or
-    stopped) is not. `watch()` checks every CHECK_S in a thread; `stop()` stops them all."""
+    """`count` worker processes kept running: one that ends before `stop` is started again
+    (under a new name) at the next `check`, unless it exits 0 in burst mode (its queue done).
+    `watch()` checks every CHECK_S in a thread; `stop()` stops them all."""
 
     def __init__(
         self,
@@ -90,7 +90,12 @@ class WorkerPool:
         """Replace the workers that died; whether any worker runs."""
         with self.lock:
             for i, proc in enumerate(self.procs):
-                if proc.poll() not in (None, 0) and not self.stopping.is_set():
+                code = proc.poll()  # 0 also when another waiter reaped it first (ECHILD)
+                if (
+                    code is not None
+                    and (code != 0 or not self.burst)
+                    and not self.stopping.is_set()
+                ):
                     print(
                         f"vpp: worker {proc.pid} died ({proc.returncode}); starting another",
                         file=sys.stderr,

@@ -97,7 +97,7 @@ class WorkerPool:
                     and not self.stopping.is_set()
                 ):
                     print(
-                        f"vpp: worker {proc.pid} died ({proc.returncode}); starting another",
+                        f"vpp: worker {proc.pid} died ({code}); starting another",
                         file=sys.stderr,
                     )
                     self.procs[i] = self._start()

@@ -1,7 +1,7 @@
 """Strict vs partial view counts and diagnostics, CAD mesh vs an isotropic remesh of it.
 
-    python bench/cadmeshes.py MESH UNITS EDGE_MM [--candidates 500] [--seed 0]
-                              [--fractions 1,0.999,0.99] [--time-limit 30]
+    python bench/cadmeshes.py MESH UNITS EDGE_MM [--candidates 500] [--seed 0] [--tilt 0]
+                              [--fractions 1,0.999,0.99] [--time-limit 30] [--cad-only]
 
 MESH is traced once per tessellation (the file itself, "cad", and a pymeshlab isotropic
 remesh with ~EDGE_MM edges and features over 30° kept, "iso"). Then each formulation is solved at
@@ -30,7 +30,7 @@ from vpp_core.remesh import isotropic_remesh
 def rows(part: Part, label: str, args: argparse.Namespace) -> None:
     """Trace `part` once, then print one JSON line per formulation and fraction."""
     request = PlanRequest(
-        candidates=CandidateGenerator(count=args.candidates, seed=args.seed),
+        candidates=CandidateGenerator(count=args.candidates, seed=args.seed, tilt_deg=args.tilt),
         solver=SolverSettings(time_limit_s=args.time_limit),
     )
     backend = make_backend(part)
@@ -52,6 +52,8 @@ def rows(part: Part, label: str, args: argparse.Namespace) -> None:
                     {
                         "mesh": args.mesh.name,
                         "tessellation": label,
+                        "seed": args.seed,
+                        "tilt_deg": args.tilt,
                         "faces": part.n_faces,
                         "median_face_mm2": float(np.median(part.areas)),
                         "formulation": formulation,
@@ -60,9 +62,13 @@ def rows(part: Part, label: str, args: argparse.Namespace) -> None:
                         "status": doc.solver.status,
                         "bound": doc.solver.bound,
                         "covered": doc.partial.covered_fraction if doc.partial else 1.0,
+                        "seen_area": doc.metrics.coverage.area,
+                        "met_area": doc.metrics.resolution.met_area,
+                        "uncoverable_mm2": doc.uncoverable.area_mm2,
                         "subpixel": d.subpixel.faces,
                         "single_candidate": d.single_candidate.faces,
                         "one_ray": d.single_candidate.one_ray,
+                        "forced_views": d.single_candidate.forced_views,
                         "enclosed": d.internal.enclosed.faces,
                         "back_to_back": d.internal.back_to_back.faces,
                         "driven_views": d.driven_views,
@@ -92,16 +98,26 @@ def pair_parser(doc: str) -> argparse.ArgumentParser:
     return parser
 
 
+def load_cad(args: argparse.Namespace) -> Part:
+    """The CAD mesh of `args`, in mm."""
+    return load_mesh(args.mesh.read_bytes(), args.mesh.suffix.lstrip("."), args.units)
+
+
 def load_pair(args: argparse.Namespace) -> tuple[Part, Part, str]:
     """The CAD mesh of `args`, its isotropic remesh and the remesh's label."""
-    cad = load_mesh(args.mesh.read_bytes(), args.mesh.suffix.lstrip("."), args.units)
+    cad = load_cad(args)
     return cad, isotropic_remesh(cad, args.edge_mm), f"iso {args.edge_mm:g} mm"
 
 
 def main() -> None:
     parser = pair_parser(__doc__)
     parser.add_argument("--candidates", type=int, default=500)
+    parser.add_argument("--tilt", type=float, default=0.0, help="candidates.tilt_deg")
+    parser.add_argument("--cad-only", action="store_true", help="skip the remesh")
     args = parser.parse_args()
+    if args.cad_only:
+        rows(load_cad(args), "cad", args)
+        return
     cad, iso, label = load_pair(args)
     rows(cad, "cad", args)
     rows(iso, label, args)

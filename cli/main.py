@@ -150,6 +150,12 @@ def _plan_options(p: argparse.ArgumentParser) -> None:
     cand.add_argument("--candidates-file", type=Path, help="JSON list of {position, gaze, up?}")
     p.add_argument("--decimate", type=float, help="generate candidates on this face fraction")
     p.add_argument("--clearance", type=float, default=20.0, help="least camera-part distance")
+    p.add_argument(
+        "--tilt",
+        type=float,
+        default=0.0,
+        help="tilt generated gazes up to this angle off the normal, deg (30 for holes, pockets)",
+    )
     p.add_argument("--solver", default="milp", choices=["milp", "greedy"])
     p.add_argument("--time-limit", type=float, default=60.0, help="solver time limit, s")
     p.add_argument("--gap", type=float, default=0.0, help="relative MIP gap accepted")
@@ -346,6 +352,7 @@ def _request(args: argparse.Namespace) -> PlanRequest:
                 seed=args.seed,
                 decimate=args.decimate,
                 clearance_mm=args.clearance,
+                tilt_deg=args.tilt,
             )
         )
         return PlanRequest(

@@ -196,6 +196,7 @@ def test_accepted_bad_meshes_plan_and_report_the_problem(name, tmp_path):
         (["--units", "furlong"], "invalid choice"),
         (["--time-limit", "0"], "time_limit"),
         (["--decimate", "1.5"], "decimate"),
+        (["--tilt", "90"], "tilt_deg"),
         (["--threads", "0"], "at least 1"),
         (["--min-coverage", "0"], "min_coverage"),
         (["--min-coverage", "1.5"], "min_coverage"),

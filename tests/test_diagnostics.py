@@ -7,7 +7,14 @@ import pytest
 import scipy.sparse as sp
 import trimesh
 
-from vpp_core.diagnostics import _hint, back_to_back, enclosed_faces, private_rows
+from vpp_core.diagnostics import (
+    WELL_SEEN_RAYS,
+    _hint,
+    _tilt_hint,
+    back_to_back,
+    enclosed_faces,
+    private_rows,
+)
 from vpp_core.document import CandidateGenerator, PlanRequest, Target
 from vpp_core.mesh import part_from_arrays
 from vpp_core.raytrace import make_backend
@@ -69,6 +76,11 @@ def test_hint_names_the_largest_fraction_that_leaves_the_faces_out():
     assert _hint(2, 9, 30.0, 100.0) is None  # more than 5 % of the area: not a nuisance
 
 
+def test_tilt_hint_only_when_a_view_is_forced_by_a_well_seen_face():
+    assert _tilt_hint(0, 9) is None
+    assert "--tilt 30" in _tilt_hint(3, 9) and "3 of 9" in _tilt_hint(3, 9)
+
+
 @pytest.fixture(scope="module")
 def plate_with_sliver():
     """A 100 mm plate, and a sub-pixel sliver standing on it that few candidates see."""
@@ -115,4 +127,8 @@ def test_plan_diagnostics_agree_with_direct_counts(plate_with_sliver):
         weak = small[mine] | single[mine]
         assert cause.driven == (len(mine) > 0 and bool(weak.all()))
     assert d.driven_views == sum(c.driven for c in d.viewpoints)
-    assert (d.hint is not None) == (d.driven_views > 0)
+    well = single & (r.max(axis=1) >= WELL_SEEN_RAYS)
+    forced = set(r[well].argmax(axis=1).tolist()) & set(chosen)
+    assert d.single_candidate.forced_views == len(forced)
+    assert ("--min-coverage" in (d.hint or "")) == (d.driven_views > 0)
+    assert ("--tilt" in (d.hint or "")) == (len(forced) > 0)

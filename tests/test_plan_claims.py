@@ -95,17 +95,19 @@ def part() -> Part:
     return stepped_part()
 
 
+@pytest.mark.parametrize("tilt", [0.0, 30.0])
 @pytest.mark.parametrize("formulation", ["density", "visibility"])
-def test_claims_hold_independently(part, formulation):
+def test_claims_hold_independently(part, formulation, tilt):
     from vpp_core.plan import plan
 
     res = 1.2  # mm: this small sensor's pitch at 500 mm is ~1.1 mm
     request = PlanRequest(
         sensor=SMALL,
         target=Target(resolution_mm=res, formulation=formulation),
-        candidates=CandidateGenerator(count=30, seed=3),
+        candidates=CandidateGenerator(count=30, seed=3, tilt_deg=tilt),
     )
     doc = PlanDocument.model_validate_json(plan(part, request).model_dump_json())
+    assert doc.candidate_info.tilt_deg == tilt
     c2w_all = np.array([_c2w(c) for c in doc.candidates])
     r = recount(part, SMALL, c2w_all).toarray()
     chosen = [v.id for v in doc.viewpoints]

@@ -9,6 +9,12 @@
    sample (not occluded, not inside) and it stays `clearance_mm` away from the part;
    otherwise try the opposite side; otherwise drop it.
 Seeded and deterministic.
+
+With `tilt_deg` > 0 (not SPEC §2's default), step 3 first tries directions drawn uniformly
+by solid angle within `tilt_deg` of the normal (TILT_TRIES of them, each side), then the
+normal itself. Along the normal, the candidates of a machined part look along a handful of
+face directions, and walls of holes and pockets are then seen by one candidate or none;
+tilted gazes see them from many (docs/cad-meshes.md).
 """
 
 from __future__ import annotations
@@ -32,6 +38,8 @@ TARGET_TOL = 0.05
 """The central ray must first hit the part within this fraction of the working distance."""
 CLEARANCE_SAMPLES = 20_000
 """Surface samples (plus all vertices) approximating the part for the clearance test."""
+TILT_TRIES = 3
+"""Tilted directions tried per sample before the plain normal (tilt_deg > 0)."""
 
 
 @dataclass(frozen=True)
@@ -42,6 +50,7 @@ class GeneratorSettings:
     seed: int = 0
     decimate: float | None = None  # fraction of faces kept in the planning mesh, (0, 1]
     clearance_mm: float = 20.0
+    tilt_deg: float = 0.0  # largest angle between a gaze and the reversed normal, [0, 90)
 
 
 @dataclass(frozen=True)
@@ -60,11 +69,17 @@ def generate(
     """Up to `settings.count` candidate viewpoints around the part (mm, part frame)."""
     if settings.count < 1:
         raise VppError("candidate count must be at least 1")
+    if not 0 <= settings.tilt_deg < 90:
+        raise VppError(f"tilt_deg must be in [0, 90), got {settings.tilt_deg}")
     planning = planning_mesh(part, settings.decimate)
     points, face_index, spacing = spaced_samples(planning, settings.count, settings.seed)
     normals = smoothed_normals(planning, points, face_index, spacing / 2)
     backend = backend or make_backend(part)
-    positions, gazes = _place(part, sensor, backend, points, normals, settings.clearance_mm)
+    directions = [normals]
+    if settings.tilt_deg > 0:
+        rng = np.random.default_rng([settings.seed, 1])
+        directions = [*(tilt(normals, settings.tilt_deg, rng) for _ in range(TILT_TRIES)), normals]
+    positions, gazes = _place(part, sensor, backend, points, directions, settings.clearance_mm)
     keep = np.isfinite(positions).all(axis=1)
     return GeneratedCandidates(
         views=make_viewpoints(positions[keep], gazes[keep]),
@@ -139,27 +154,40 @@ def smoothed_normals(
     return np.asarray(out)
 
 
+def tilt(normals: np.ndarray, max_deg: float, rng: np.random.Generator) -> np.ndarray:
+    """(k, 3) unit vectors drawn uniformly by solid angle within `max_deg` of each normal."""
+    cos_t = rng.uniform(np.cos(np.radians(max_deg)), 1.0, len(normals))
+    phi = rng.uniform(0.0, 2 * np.pi, len(normals))
+    helper = np.where(np.abs(normals[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    u = np.cross(normals, helper)
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    v = np.cross(normals, u)
+    side = np.cos(phi)[:, None] * u + np.sin(phi)[:, None] * v
+    return np.asarray(cos_t[:, None] * normals + np.sqrt(1 - cos_t * cos_t)[:, None] * side)
+
+
 def _place(
     part: Part,
     sensor: Sensor,
     backend: RayBackend,
     points: np.ndarray,
-    normals: np.ndarray,
+    directions: list[np.ndarray],
     clearance_mm: float,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(k, 3) camera positions (NaN = dropped) and gazes, trying +normal then -normal."""
+    """(k, 3) camera positions (NaN = dropped) and gazes: per direction set, +d then -d."""
     wd = sensor.working_distance
     tree = _surface_tree(part)
     positions = np.full_like(points, np.nan)
-    gazes = -normals.copy()
-    for sign in (1.0, -1.0):
-        todo = ~np.isfinite(positions).all(axis=1)
-        cams = points[todo] + sign * wd * normals[todo]
-        ok = _sees_target(backend, cams, -sign * normals[todo], wd)
-        ok &= tree.query(cams)[0] >= clearance_mm
-        idx = np.flatnonzero(todo)[ok]
-        positions[idx] = cams[ok]
-        gazes[idx] = -sign * normals[idx]
+    gazes = -directions[-1].copy()
+    for d in directions:
+        for sign in (1.0, -1.0):
+            todo = ~np.isfinite(positions).all(axis=1)
+            cams = points[todo] + sign * wd * d[todo]
+            ok = _sees_target(backend, cams, -sign * d[todo], wd)
+            ok &= tree.query(cams)[0] >= clearance_mm
+            idx = np.flatnonzero(todo)[ok]
+            positions[idx] = cams[ok]
+            gazes[idx] = -sign * d[idx]
     return positions, gazes
 
 

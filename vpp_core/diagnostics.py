@@ -3,6 +3,8 @@
 - sub-pixel faces: counted faces of area below p², p the pixel footprint at the working
   distance (SPEC §7), so that a face can hold at most about one ray per view;
 - single-candidate faces: counted faces that exactly one candidate sees, with their rays;
+  a selected view that alone sees a face with at least `WELL_SEEN_RAYS` rays (real surface,
+  not a stray ray) is "forced": candidates along the normal are too few for that surface;
 - internal faces: back-to-back (a face coincides with another of opposite orientation) or
   enclosed: from points just off either side of the face, none of `ESCAPE_DIRECTIONS` rays
   spread over the hemisphere leaves the part, so the face lies in a closed cavity or is
@@ -33,6 +35,10 @@ OFFSET_REL = 1e-6
 """Ray origins sit this fraction of the part's diagonal off the face."""
 SUGGESTED_COVERAGE = (0.999, 0.995, 0.99, 0.98, 0.95)
 """Partial-cover fractions the hint may name, largest first."""
+WELL_SEEN_RAYS = 4
+"""A single-candidate face with at least this many rays is real surface, not a stray ray."""
+SUGGESTED_TILT_DEG = 30
+"""The candidate tilt the hint names (docs/cad-meshes.md)."""
 
 
 class FaceGroup(BaseModel):
@@ -43,10 +49,14 @@ class FaceGroup(BaseModel):
 
 
 class SingleCandidate(FaceGroup):
-    """Faces exactly one candidate sees; `one_ray` of them get a single ray from it."""
+    """Faces exactly one candidate sees; `one_ray` of them get a single ray from it.
+
+    `forced_views`: selected views that alone see some face with ≥ WELL_SEEN_RAYS rays.
+    """
 
     one_ray: int
     median_rays: float | None
+    forced_views: int = 0
 
 
 class Internal(BaseModel):
@@ -91,8 +101,13 @@ def diagnose(
     selected: np.ndarray,
     backend: RayBackend,
     partial: bool = False,
+    normal_candidates: bool = False,
 ) -> Diagnostics:
-    """Diagnostics of views `selected` (K,) given R (M, N) and the cover rows (faces `rows`)."""
+    """Diagnostics of views `selected` (K,) given R (M, N) and the cover rows (faces `rows`).
+
+    `partial`: a partial cover was asked for (no coverage hint); `normal_candidates`: the
+    candidates were generated along the normals (tilt 0), so a tilt may be suggested.
+    """
     areas, counted = part.areas, part.counted
     p = sensor.pixel_pitch_mm(sensor.working_distance)
     subpixel = counted & (areas < p * p)
@@ -111,7 +126,9 @@ def diagnose(
     causes = _causes(private, rows, selected, areas, weak)
     driven = [c for c in causes if c.driven]
     driven_area = float(sum(c.private_area_mm2 for c in driven))
-    rays = r.data[r.indptr[:-1][single]] if single.any() else np.zeros(0)
+    first = r.indptr[:-1][single]
+    rays = r.data[first]
+    forced = np.intersect1d(r.indices[first[rays >= WELL_SEEN_RAYS]], selected)
     return Diagnostics(
         pixel_footprint_mm=p,
         subpixel=_group(subpixel, areas),
@@ -119,6 +136,7 @@ def diagnose(
             **_group(single, areas).model_dump(),
             one_ray=int(np.count_nonzero(rays == 1)),
             median_rays=float(np.median(rays)) if rays.size else None,
+            forced_views=len(forced),
         ),
         internal=Internal(
             back_to_back=_group(b2b & counted, areas),
@@ -129,7 +147,10 @@ def diagnose(
         viewpoints=causes,
         driven_views=len(driven),
         driven_area_mm2=driven_area,
-        hint=None if partial else _hint(len(driven), len(causes), driven_area, areas[rows].sum()),
+        hint=_join(
+            _tilt_hint(len(forced), len(causes)) if normal_candidates else None,
+            None if partial else _hint(len(driven), len(causes), driven_area, areas[rows].sum()),
+        ),
     )
 
 
@@ -222,6 +243,24 @@ def _causes(
 def _group(mask: np.ndarray, areas: np.ndarray) -> FaceGroup:
     """FaceGroup of the faces in `mask` (M,) bool."""
     return FaceGroup(faces=int(mask.sum()), area_mm2=float(areas[mask].sum()))
+
+
+def _join(*hints: str | None) -> str | None:
+    """The given hints as one text, or None."""
+    return "; ".join(h for h in hints if h) or None
+
+
+def _tilt_hint(forced: int, views: int) -> str | None:
+    """The hint when views are forced by well-seen faces only one normal candidate sees."""
+    if not forced:
+        return None
+    return (
+        f"{forced} of {views} viewpoints are the only candidate that sees some face with "
+        f"{WELL_SEEN_RAYS} or more rays (holes, pocket walls); try candidates tilted off the "
+        f"normal (--tilt {SUGGESTED_TILT_DEG}, or candidates.tilt_deg): they see such faces "
+        "from several poses (2-5x fewer views on machined parts), and reach more surface, "
+        "which a strict cover must then cover too"
+    )
 
 
 def _hint(driven: int, views: int, area: float, coverable: float) -> str | None:

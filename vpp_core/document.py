@@ -39,6 +39,13 @@ class CandidateGenerator(_Strict):
     seed: int = Field(0, ge=0)
     decimate: float | None = Field(None, gt=0, le=1, description="fraction of faces kept")
     clearance_mm: float = Field(20.0, ge=0, description="least camera distance to the part")
+    tilt_deg: float = Field(
+        0.0,
+        ge=0,
+        lt=90,
+        description="gazes drawn within this angle of the smoothed normal (0: along it, SPEC §2); "
+        "30 lets holes and pocket walls be seen by many candidates (docs/cad-meshes.md)",
+    )
 
 
 class ViewpointIn(_Strict):
@@ -124,6 +131,7 @@ class CandidateInfo(BaseModel):
     planning_faces: int | None = None
     seed: int | None = None
     decimate: float | None = None
+    tilt_deg: float | None = None
 
 
 class SolverOut(BaseModel):

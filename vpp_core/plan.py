@@ -57,7 +57,9 @@ def candidates_for(
     """The request's candidates: generated (default generator) or the explicit list."""
     spec = request.candidates
     if isinstance(spec, CandidateGenerator):
-        settings = GeneratorSettings(spec.count, spec.seed, spec.decimate, spec.clearance_mm)
+        settings = GeneratorSettings(
+            spec.count, spec.seed, spec.decimate, spec.clearance_mm, spec.tilt_deg
+        )
         gen = generate(part, request.sensor, settings, backend)
         info = CandidateInfo(
             source="generated",
@@ -68,6 +70,7 @@ def candidates_for(
             planning_faces=gen.planning_faces,
             seed=spec.seed,
             decimate=spec.decimate,
+            tilt_deg=spec.tilt_deg,
         )
         return gen.views, info
     n = len(spec.viewpoints)
@@ -214,6 +217,7 @@ def finish(
             cover.result.selected,
             backend or make_backend(part, trace.backend),
             partial=request.target.min_coverage < 1,
+            normal_candidates=info.source == "generated" and not info.tilt_deg,
         )
     doc.timings_s = clock.timings
     doc.rays.reused = reused

@@ -22,6 +22,18 @@ MIN_COVERAGE = 0.999
 """The documented partial-cover setting (docs/cad-meshes.md)."""
 
 
+def partial_view_counts(pairs: list[tuple[Part, PlanRequest]]) -> list[int]:
+    """Views of each (part, request) plan, each checked to cover ≥ MIN_COVERAGE of its area."""
+    from vpp_core.plan import plan
+
+    counts = []
+    for part, request in pairs:
+        doc = plan(part, request)
+        assert doc.partial is not None and doc.partial.covered_fraction >= MIN_COVERAGE
+        counts.append(len(doc.viewpoints))
+    return counts
+
+
 @pytest.fixture(scope="module")
 def two_tessellations() -> tuple[Part, Part]:
     data = (shared_dir(MESHES) / "hirth_sample_small.stl").read_bytes()
@@ -38,18 +50,13 @@ def two_tessellations() -> tuple[Part, Part]:
 @pytest.mark.slow
 @pytest.mark.parametrize("formulation", ["visibility", "density"])
 def test_partial_cover_counts_agree_across_tessellations(two_tessellations, formulation):
-    from vpp_core.plan import plan
-
     request = PlanRequest(
         target=Target(resolution_mm=0.18, formulation=formulation, min_coverage=MIN_COVERAGE),
         candidates=CandidateGenerator(count=500),
         solver=SolverSettings(time_limit_s=15),
     )
-    docs = [plan(part, request) for part in two_tessellations]
-    counts = [len(d.viewpoints) for d in docs]
+    counts = partial_view_counts([(part, request) for part in two_tessellations])
     assert abs(counts[0] - counts[1]) <= 1, counts
-    for d in docs:
-        assert d.partial is not None and d.partial.covered_fraction >= MIN_COVERAGE
 
 
 @pytest.mark.slow
@@ -57,7 +64,6 @@ def test_tilted_candidates_keep_plate_holes_counts_within_one_across_tessellatio
     """plate_holes.STL against a 4 mm remesh: along the normals 5 and 8 views at F = 0.999
     (docs/cad-meshes.md); with candidates tilted up to 30°, 5 and 6."""
     pytest.importorskip("pymeshlab")
-    from vpp_core.plan import plan
     from vpp_core.remesh import isotropic_remesh
 
     cad = load_mesh((shared_dir(MESHES) / "plate_holes.STL").read_bytes(), "stl")
@@ -68,28 +74,22 @@ def test_tilted_candidates_keep_plate_holes_counts_within_one_across_tessellatio
         candidates=CandidateGenerator(count=500, tilt_deg=30.0),
         solver=SolverSettings(time_limit_s=60),
     )
-    docs = [plan(part, request) for part in (cad, iso)]
-    counts = [len(d.viewpoints) for d in docs]
+    counts = partial_view_counts([(cad, request), (iso, request)])
     assert abs(counts[0] - counts[1]) <= 1, counts
-    for d in docs:
-        assert d.partial is not None and d.partial.covered_fraction >= MIN_COVERAGE
 
 
 @pytest.mark.slow
 def test_tilted_candidates_make_the_count_independent_of_the_seed():
     """featuretype.STL: along the normals seeds 0 and 1 give 25 and 15 views at F = 0.999
     (docs/cad-meshes.md); tilted by up to 30°, the same seeds agree within 1."""
-    from vpp_core.plan import plan
-
     part = load_mesh((shared_dir(MESHES) / "featuretype.STL").read_bytes(), "stl", units="in")
-    counts = []
-    for seed in (0, 1):
-        request = PlanRequest(
+    requests = [
+        PlanRequest(
             target=Target(formulation="visibility", min_coverage=MIN_COVERAGE),
             candidates=CandidateGenerator(count=500, seed=seed, tilt_deg=30.0),
             solver=SolverSettings(time_limit_s=30),
         )
-        doc = plan(part, request)
-        assert doc.partial is not None and doc.partial.covered_fraction >= MIN_COVERAGE
-        counts.append(len(doc.viewpoints))
+        for seed in (0, 1)
+    ]
+    counts = partial_view_counts([(part, request) for request in requests])
     assert abs(counts[0] - counts[1]) <= 1 and max(counts) <= 8, counts

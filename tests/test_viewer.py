@@ -8,6 +8,7 @@ same pinhole (SPEC §8 convention) and the face colours the page says it shows.
 from __future__ import annotations
 
 import io
+import itertools
 import os
 import shutil
 from collections.abc import Iterator
@@ -199,9 +200,19 @@ def test_looking_through_a_camera_shows_what_a_ray_cast_sees(live, browser) -> N
         mine = np.zeros(len(base), bool)
         mine[arrays["view_faces"][arrays["view_offsets"][k] : arrays["view_offsets"][k + 1]]] = 1
         assert (shown[mine] == base[mine]).all() and (shown[~mine] != base[~mine]).any(axis=1).all()
+        # each pixel has the colour of the face the ray cast finds through it; where an edge
+        # crosses the pixel, a blend of the colours found around it (antialiasing), but for a
+        # few where the rasteriser leaves a crack between two faces that a ray cast never sees
+        padded = np.pad(faces, 1, mode="edge")
+        shifts = itertools.product(range(3), range(3))
+        around = [padded[dy : dy + h, dx : dx + w] for dy, dx in shifts]
+        colours = np.stack([np.where((n >= 0)[..., None], shown[n], BACKGROUND) for n in around])
+        lo, hi = colours.min(axis=0) - 2, colours.max(axis=0) + 2
         both = drawn & hit
-        close = (np.abs(image[both] - shown[faces[both]]) <= 2).all(axis=1)
-        assert close.mean() > 0.98, (k, close.mean())
+        close = ((image >= lo) & (image <= hi)).all(axis=2)
+        inner = both & (np.stack(around) == faces).all(axis=0)
+        assert inner.sum() > 200 and close[inner].all(), (k, inner.sum(), close[inner].mean())
+        assert close[both].mean() > 0.99, (k, close[both].mean())
     assert page.errors == []
 
 

@@ -19,7 +19,8 @@ and the bound; `both` is greedy and milp.
 --lp the LP relaxation is also solved on its own (HiGHS interior point), so that the
 solver's bound can be compared with it (`lp` in the line).
 
-Fields: instance, solver, rows, cols (after reductions), objective, bound, gap, status,
+Fields: instance, solver, rows, cols (after reductions), blocks (independent covers the solver
+split those into; null for greedy and highs), objective, bound, gap, status,
 time_s, time_to_best_s, best_known, input_rows, input_cols, build_s, peak_rss_mib.
 """
 
@@ -165,6 +166,7 @@ def run(inst: Instance, solver: str, args: argparse.Namespace) -> dict[str, Any]
         "solver": res.solver,
         "rows": res.rows,
         "cols": res.cols,
+        "blocks": res.presolve.get("blocks"),
         "objective": res.objective,
         "bound": res.bound,
         "gap": None if res.gap is None else round(res.gap, 6),

@@ -18,7 +18,7 @@ from vpp_core import mip, setcover
 from vpp_core.errors import SolverError
 from vpp_core.lpbound import LpBound
 from vpp_core.orlib import parse_orlib
-from vpp_core.reduce import unique_rows
+from vpp_core.reduce import blocks, unique_rows
 from vpp_core.setcover import (
     CoverResult,
     greedy_cover,
@@ -109,6 +109,68 @@ def test_orlib_time_limit_returns_verified_incumbent_and_valid_bound() -> None:
     assert res.bound <= optimum <= res.objective
     assert res.gap == pytest.approx((res.objective - res.bound) / res.objective)
     assert res.time_s < 5.0
+
+
+def stacked(*names: str) -> tuple[sp.csr_array, np.ndarray, list[float]]:
+    """OR-Library instances side by side as one block-diagonal cover, and their optima."""
+    parts = [orlib_instance(name) for name in names]
+    A = sp.csr_array(sp.block_diag([a for a, _, _ in parts], format="csr"))
+    return A, np.concatenate([c for _, c, _ in parts]), [o for _, _, o in parts]
+
+
+def test_blocks_are_the_independent_covers_smallest_first() -> None:
+    rng = np.random.default_rng(3)
+    sizes = [(40, 9), (5, 3), (20, 6)]  # (rows, cols) of each block
+    dense = sp.block_diag([(rng.random(s) < 0.5) + np.eye(*s) for s in sizes]).toarray()
+    dense = np.hstack([dense, np.zeros((dense.shape[0], 1))])  # a column that sees nothing
+    rows, cols = rng.permutation(dense.shape[0]), rng.permutation(dense.shape[1])
+    found = blocks(sp.csr_array(dense[rows][:, cols]))
+    row_of, col_of = np.argsort(rows), np.argsort(cols)  # where each original row/col went
+    r0, c0 = np.cumsum([0] + [r for r, _ in sizes]), np.cumsum([0] + [c for _, c in sizes])
+    expected = [
+        (np.sort(row_of[r0[b] : r0[b + 1]]), np.sort(col_of[c0[b] : c0[b + 1]]))
+        for b in np.argsort([dense[r0[b] : r0[b + 1]].sum() for b in range(3)])
+    ]
+    assert len(found) == 3
+    for (rows_f, cols_f), (rows_e, cols_e) in zip(found, expected, strict=True):
+        np.testing.assert_array_equal(rows_f, rows_e)
+        np.testing.assert_array_equal(cols_f, cols_e)
+
+
+def test_independent_blocks_are_solved_apart_and_their_optima_add_up() -> None:
+    A, costs, optima = stacked("scp41", "scp51")
+    res = solve_cover(A, costs, time_limit=60.0)
+    assert res.presolve["blocks"] >= 2
+    assert res.status == "optimal" and res.objective == res.bound == sum(optima)
+    assert is_cover(A, res.selected)
+
+
+def test_a_block_out_of_time_leaves_the_proven_blocks_proven() -> None:
+    A, costs, optima = stacked("scp41", "scpnre1")  # scpnre1 cannot be closed in 3 s
+    res = solve_cover(A, costs, time_limit=3.0)
+    assert res.status == "time_limit" and is_cover(A, res.selected)
+    assert res.bound is not None and optima[0] < res.bound <= sum(optima) <= res.objective
+    assert res.time_s < 6.0
+
+
+def test_a_small_block_gets_time_for_its_proof_beside_a_big_one(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    A, costs, _ = stacked("scpnre1")
+    pair = sp.csr_array([[0.6, 0.6]])  # needs both columns: LP 1, optimum 2
+    A = sp.csr_array(sp.block_diag([A, pair], format="csr"))
+    closed: list[tuple[int, bool]] = []
+    solve_block = setcover._solve_block
+
+    def spy(sub: sp.csr_array, *args: object) -> object:
+        S = solve_block(sub, *args)  # type: ignore[arg-type]
+        closed.append((sub.shape[0], S.closed()))
+        return S
+
+    monkeypatch.setattr(setcover, "_solve_block", spy)
+    res = solve_cover(A, np.append(costs, [1.0, 1.0]), time_limit=2.0)
+    assert closed[0] == (1, True)  # the pair, first: proven, not starved by its tiny share
+    assert res.status == "time_limit" and res.bound is not None and res.bound < res.objective
 
 
 def test_time_limit_spent_before_highs_returns_greedy() -> None:

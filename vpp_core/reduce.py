@@ -12,6 +12,9 @@ original), so a proven optimum of the reduced model is a proven optimum of A:
 - dominated columns: column j is dropped when another column k fully covers every row j
   touches (A[i, k] = 1 wherever A[i, j] > 0) at no higher cost; of identical 0/1 columns
   the first is kept. (With partial coverage a merely larger k is not enough: k and j add.)
+
+`blocks` then splits what is left into independent covers (rows that share no column),
+whose optima add up.
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.sparse import csgraph
 
 TOL = 1e-9
 """A row counts as covered when its demand left is <= TOL (as `setcover.COVER_TOL`)."""
@@ -205,3 +209,27 @@ def _dominates(csc: sp.csc_array, k: int, j: int, costs: np.ndarray) -> bool:
     vals_j = csc.data[csc.indptr[j] : csc.indptr[j + 1]]
     mirror = len(rows_k) == len(rows_j) and np.all(vals_j >= 1.0 - TOL)
     return not (mirror and costs[k] == costs[j] and k > j)
+
+
+def blocks(A: sp.csr_array) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Independent sub-covers of A (M, N): (rows, columns) int64 sorted index pairs of the
+    connected components of its row-column graph, fewest nonzeros first; columns that touch
+    no row are left out."""
+    m, n = A.shape
+    if m == 0:
+        return []
+    pattern = sp.csr_array((np.ones(A.nnz, np.int8), A.indices, A.indptr), shape=A.shape)
+    graph = sp.block_array([[None, pattern], [pattern.T, None]], format="csr")
+    k, label = csgraph.connected_components(graph, directed=False)
+    ids, row_block = np.unique(label[:m], return_inverse=True)
+    block_of = np.full(k, len(ids))  # components without rows: one bin past the blocks
+    block_of[ids] = np.arange(len(ids))
+    rows, cols = _groups(row_block, len(ids)), _groups(block_of[label[m:]], len(ids) + 1)
+    nnz = np.bincount(row_block, weights=np.diff(A.indptr), minlength=len(ids))
+    return [(rows[b], cols[b]) for b in np.argsort(nnz, kind="stable")]
+
+
+def _groups(keys: np.ndarray, count: int) -> list[np.ndarray]:
+    """For each key 0..count-1, the sorted int64 positions of `keys` (L,) that hold it."""
+    order = np.argsort(keys, kind="stable").astype(np.int64)
+    return np.split(order, np.cumsum(np.bincount(keys, minlength=count))[:-1])

@@ -2,13 +2,15 @@
 
     python bench/cadmeshes.py MESH UNITS EDGE_MM [--candidates 500] [--seed 0] [--tilt 0]
                               [--fractions 1,0.999,0.99] [--time-limit 30] [--cad-only]
+                              [--subdivide MM]
 
 MESH is traced once per tessellation (the file itself, "cad", and a pymeshlab isotropic
 remesh with ~EDGE_MM edges and features over 30° kept, "iso"). Then each formulation is solved at
 each fraction from the same R. One JSON line per (tessellation, formulation, fraction) goes to
 stdout: views, solver status and bound, covered fraction, and the diagnostics' counts. The
 tables of docs/cad-meshes.md come from this. Needs pymeshlab (`pip install -e '.[remesh]'`;
-the test extra has it too).
+the test extra has it too). --subdivide MM splits both tessellations' faces until every edge is
+at most MM mm (trimesh.remesh.subdivide_to_size: the same surface, smaller faces) first.
 """
 
 from __future__ import annotations
@@ -19,9 +21,10 @@ import time
 from pathlib import Path
 
 import numpy as np
+import trimesh
 
 from vpp_core.document import CandidateGenerator, PlanRequest, SolverSettings, Target
-from vpp_core.mesh import Part, load_mesh
+from vpp_core.mesh import Part, load_mesh, part_from_arrays
 from vpp_core.plan import candidates_for, finish
 from vpp_core.raytrace import make_backend, trace_counts
 from vpp_core.remesh import isotropic_remesh
@@ -109,18 +112,27 @@ def load_pair(args: argparse.Namespace) -> tuple[Part, Part, str]:
     return cad, isotropic_remesh(cad, args.edge_mm), f"iso {args.edge_mm:g} mm"
 
 
+def subdivided(part: Part, max_edge_mm: float | None) -> Part:
+    """`part` with its faces split until no edge is longer than `max_edge_mm` (None: as is)."""
+    if max_edge_mm is None:
+        return part
+    vertices, faces = trimesh.remesh.subdivide_to_size(part.vertices, part.faces, max_edge_mm)
+    return part_from_arrays(vertices, faces)
+
+
 def main() -> None:
     parser = pair_parser(__doc__)
     parser.add_argument("--candidates", type=int, default=500)
     parser.add_argument("--tilt", type=float, default=0.0, help="candidates.tilt_deg")
     parser.add_argument("--cad-only", action="store_true", help="skip the remesh")
+    parser.add_argument("--subdivide", type=float, metavar="MM", help="split faces to edges <= MM")
     args = parser.parse_args()
     if args.cad_only:
-        rows(load_cad(args), "cad", args)
+        rows(subdivided(load_cad(args), args.subdivide), "cad", args)
         return
     cad, iso, label = load_pair(args)
-    rows(cad, "cad", args)
-    rows(iso, label, args)
+    rows(subdivided(cad, args.subdivide), "cad", args)
+    rows(subdivided(iso, args.subdivide), label, args)
 
 
 if __name__ == "__main__":

@@ -205,12 +205,12 @@ def test_looking_through_a_camera_shows_what_a_ray_cast_sees(live, browser) -> N
         # few where the rasteriser leaves a crack between two faces that a ray cast never sees
         padded = np.pad(faces, 1, mode="edge")
         shifts = itertools.product(range(3), range(3))
-        around = [padded[dy : dy + h, dx : dx + w] for dy, dx in shifts]
-        colours = np.stack([np.where((n >= 0)[..., None], shown[n], BACKGROUND) for n in around])
+        around = np.stack([padded[dy : dy + h, dx : dx + w] for dy, dx in shifts])  # (9, h, w)
+        colours = np.where((around >= 0)[..., None], shown[around], BACKGROUND)
         lo, hi = colours.min(axis=0) - 2, colours.max(axis=0) + 2
         both = drawn & hit
         close = ((image >= lo) & (image <= hi)).all(axis=2)
-        inner = both & (np.stack(around) == faces).all(axis=0)
+        inner = both & (around == faces).all(axis=0)
         assert inner.sum() > 200 and close[inner].all(), (k, inner.sum(), close[inner].mean())
         assert close[both].mean() > 0.99, (k, close[both].mean())
     assert page.errors == []

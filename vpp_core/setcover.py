@@ -89,9 +89,7 @@ class CoverResult:
 
 
 def _trivial_bound(A: sp.csr_array, costs: np.ndarray) -> float:
-    """Lower bound max_i min_{j: A_ij > 0} c_j (every row needs one of its columns); 0 if M = 0."""
-    if A.shape[0] == 0:
-        return 0.0
+    """Lower bound max_i min_{j: A_ij > 0} c_j (every row needs one of its columns); M > 0."""
     return float(np.minimum.reduceat(costs[A.indices], A.indptr[:-1]).max())
 
 
@@ -294,8 +292,9 @@ def _solve_block(
 
 
 def _status_of(searches: list[_Search], closed: bool) -> str:
-    """Truthful status of the blocks together: "optimal" only when every bound meets its cover's
-    cost; otherwise time_limit or gap_limit if some block has it, else heuristic."""
+    """Truthful status of the blocks together: "optimal" only when the summed bound meets the
+    cover's cost (`closed`); otherwise time_limit or gap_limit if some block has it, else
+    heuristic."""
     if closed:
         return "optimal"
     statuses = {_status(S, S.closed()) for S in searches}

@@ -15,6 +15,7 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
+from vpp_core.diagnostics import Undersampled
 from vpp_core.document import (
     CandidateGenerator,
     PlanDocument,
@@ -28,6 +29,7 @@ from vpp_core.plan import plan
 from vpp_core.pointcloud import CloudStats, simulate_plan, write_ply
 from vpp_core.rays import DEFAULT_BACKEND
 from vpp_core.raytrace import BACKENDS
+from vpp_core.refine import refine
 from vpp_core.samples import sample_stl
 from vpp_core.sensor import make_sensor
 from vpp_core.studies import (
@@ -136,6 +138,12 @@ def _plan_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("mesh", type=Path, help="mesh file: STL, OBJ, PLY, OFF, GLB, GLTF")
     p.add_argument("--units", default="mm", choices=sorted(UNITS_TO_MM), help="mesh file units")
     p.add_argument("--format", help="mesh format if the extension does not tell")
+    p.add_argument(
+        "--max-face-area",
+        type=float,
+        metavar="MM2",
+        help="split faces larger than this, mm² (big CAD facets; 1 for the paper camera)",
+    )
     p.add_argument("--sensor", type=Path, help="sensor JSON (SPEC §2); default: paper camera")
     p.add_argument("--resolution", type=float, default=0.18, help="target resolution, mm")
     p.add_argument("--formulation", default="density", choices=["density", "visibility"])
@@ -319,7 +327,10 @@ def _load(args: argparse.Namespace, settings: Settings) -> Part:
     """The mesh file of the command line as a Part, within the settings' limits."""
     data = _read(args.mesh, settings.max_upload_bytes)
     fmt = args.format or args.mesh.suffix.lstrip(".") or "stl"
-    return load_mesh(data, fmt, args.units, max_faces=settings.max_faces)
+    part = load_mesh(data, fmt, args.units, max_faces=settings.max_faces)
+    if args.max_face_area is None:
+        return part
+    return refine(part, args.max_face_area, max_faces=settings.max_faces)
 
 
 def _write_all(folder: Path, files: dict[str, bytes]) -> None:
@@ -501,6 +512,7 @@ def _diagnostic_rows(doc: PlanDocument) -> list[tuple[str, str]]:
     if d is None:
         return []
     sc, inner = d.single_candidate, d.internal
+    under = [] if d.undersampled is None else [_undersampled_row(d.undersampled)]
     return [
         (
             "sub-pixel faces",
@@ -520,7 +532,16 @@ def _diagnostic_rows(doc: PlanDocument) -> list[tuple[str, str]]:
             "views only for such faces",
             f"{d.driven_views} of {len(d.viewpoints)} ({d.driven_area_mm2:.4g} mm²)",
         ),
+        *under,
     ]
+
+
+def _undersampled_row(u: Undersampled) -> tuple[str, str]:
+    """The summary row of seen faces larger than an element that the rays sample in part."""
+    return (
+        f"seen faces > {u.element_mm2:g} mm²",
+        f"{u.unsampled_mm2:.4g} mm² get no ray; {u.faces} ({u.area_mm2:.4g} mm²) under half",
+    )
 
 
 def _g(x: float | None) -> str:

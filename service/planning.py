@@ -17,6 +17,7 @@ from vpp_core.document import PlanRequest
 from vpp_core.errors import NotFoundError, TooLargeError, VppError
 from vpp_core.mesh import load_mesh
 from vpp_core.plan import check_request
+from vpp_core.refine import refine
 from vpp_core.scene import geometry_scene, plan_scene
 from vpp_core.studies import check_study
 from worker import artifacts as art
@@ -50,11 +51,20 @@ def read_upload(file: BinaryIO, max_bytes: int) -> bytes:
 
 
 def upload_mesh(
-    store: Store, settings: Settings, data: bytes, filename: str | None, fmt: str | None, units: str
+    store: Store,
+    settings: Settings,
+    data: bytes,
+    filename: str | None,
+    fmt: str | None,
+    units: str,
+    max_face_area_mm2: float | None = None,
 ) -> MeshSummary:
-    """Check and store a mesh; the same geometry again gives the same id and stores nothing."""
+    """Check and store a mesh (its faces split to `max_face_area_mm2` if given); the same
+    geometry again gives the same id and stores nothing."""
     file_type = fmt or PurePath(filename or "").suffix.lstrip(".") or "stl"
     part = load_mesh(data, file_type, units, max_faces=settings.max_faces)
+    if max_face_area_mm2 is not None:
+        part = refine(part, max_face_area_mm2, max_faces=settings.max_faces)
     key = art.summary_key(part.id)
     if store.exists(key) and store.exists(art.mesh_key(part.id)):
         return MeshSummary.model_validate_json(store.get(key))

@@ -70,6 +70,19 @@ def test_plate_density_needs_two_views_visibility_one(plate_files, tmp_path, for
     assert "viewpoints" in run.stdout and "optimal" in run.stdout
 
 
+def test_max_face_area_plans_on_elements(plate_files, tmp_path):
+    mesh, views = plate_files
+    out = tmp_path / "plan.json"
+    run = vpp("plan", mesh, "--candidates-file", views, "--max-face-area", "1", "-o", out, "-q")
+    assert run.returncode == 0, run.stderr
+    doc = json.loads(out.read_text())
+    assert doc["mesh"]["faces"] == 512  # each 200 mm² triangle into 256 of 0.78 mm²
+    assert "faces larger than 1 mm² split: 2 faces -> 512" in doc["mesh"]["warnings"]
+    assert len(doc["viewpoints"]) == 2 and doc["solver"]["status"] == "optimal"
+    assert doc["metrics"]["coverage"]["area"] == pytest.approx(1.0)
+    assert doc["metrics"]["resolution"]["met_area"] == pytest.approx(1.0)
+
+
 def test_plan_with_generated_candidates_writes_all_sections(tmp_path):
     mesh = tmp_path / "box.stl"
     trimesh.creation.box([60, 40, 20]).export(mesh)
@@ -200,6 +213,8 @@ def test_accepted_bad_meshes_plan_and_report_the_problem(name, tmp_path):
         (["--threads", "0"], "at least 1"),
         (["--min-coverage", "0"], "min_coverage"),
         (["--min-coverage", "1.5"], "min_coverage"),
+        (["--max-face-area", "0"], "positive"),
+        (["--max-face-area", "nan"], "positive"),
     ],
 )
 def test_bad_options_fail_with_one_line_and_exit_2(plate_files, args, match):
@@ -236,6 +251,9 @@ def test_limits_are_settings(plate_files, monkeypatch):
     monkeypatch.setenv("VPP_MAX_RAYS", "1000000")
     run = vpp("plan", mesh, "-q", "--candidates-file", views)
     assert run.returncode == 2 and "rays exceed the limit" in run.stderr
+    monkeypatch.setenv("VPP_MAX_FACES", "100")
+    run = vpp("plan", mesh, "-q", "--max-face-area", "1")
+    assert run.returncode == 2 and "gives 512 faces, the limit is 100" in run.stderr
     monkeypatch.setenv("VPP_MAX_FACES", "1")
     run = vpp("plan", mesh, "-q")
     assert run.returncode == 2 and "limit is 1" in run.stderr

@@ -7,17 +7,22 @@ import pytest
 import scipy.sparse as sp
 import trimesh
 
+from tests.conftest import look_down, plate
 from vpp_core.diagnostics import (
     WELL_SEEN_RAYS,
+    _element_hint,
     _hint,
     _tilt_hint,
     back_to_back,
     enclosed_faces,
     private_rows,
+    sampled_area,
+    undersampled,
 )
 from vpp_core.document import CandidateGenerator, PlanRequest, Target
 from vpp_core.mesh import part_from_arrays
-from vpp_core.raytrace import make_backend
+from vpp_core.raytrace import make_backend, trace_counts
+from vpp_core.refine import refine
 from vpp_core.sensor import Sensor
 
 SMALL = Sensor(width_px=320, height_px=200, fov_x_deg=38.7, fov_y_deg=24.75)
@@ -132,3 +137,72 @@ def test_plan_diagnostics_agree_with_direct_counts(plate_with_sliver):
     assert d.single_candidate.forced_views == len(forced)
     assert ("--min-coverage" in (d.hint or "")) == (d.driven_views > 0)
     assert ("--tilt" in (d.hint or "")) == (len(forced) > 0)
+    u = d.undersampled
+    assert u.element_mm2 == pytest.approx(30 * p * p, rel=0.05)
+    coverable = part.areas[model.faces].sum()
+    assert ("--max-face-area" in (d.hint or "")) == (u.unsampled_mm2 >= 1e-3 * coverable)
+
+
+def shaded_plate(bar_to_x: float) -> trimesh.Trimesh:
+    """A 20 mm plate of two faces at z = 0 under a bar over x in [-10, bar_to_x] at z = 5."""
+    v, f = plate(side=20.0)
+    b = bar_to_x
+    bar = np.array([[-10.0, -10, 5], [b, -10, 5], [b, 10, 5], [-10, 10, 5]])
+    return trimesh.Trimesh(np.vstack([v, bar]), np.vstack([f, [[4, 5, 6], [4, 6, 7]]]))
+
+
+@pytest.mark.parametrize("tilt", [0.0, 50.0])
+def test_sampled_area_of_a_plate_in_full_view_is_its_area(tilt):
+    part = part_from_arrays(*plate(side=20.0, tilt_deg=tilt))
+    view = look_down((40.0, 0.0, 500.0))
+    r = trace_counts(part, Sensor(), view).counts
+    sampled = sampled_area(part, Sensor(), view, sp.csr_array(r), np.array([0]))
+    assert sampled == pytest.approx(part.areas, rel=0.02)
+
+
+@pytest.mark.parametrize("bar_to_x", [0.0, 6.0])
+def test_sampled_area_agrees_with_the_elements_that_get_rays(bar_to_x):
+    """The footprint estimate per face against an independent count: the area of its 0.2 mm²
+    elements that some ray lands on."""
+    mesh = shaded_plate(bar_to_x)
+    part = part_from_arrays(mesh.vertices, mesh.faces)
+    view = look_down((0.0, 0.0, 500.0))
+    r = sp.csr_array(trace_counts(part, Sensor(), view).counts)
+    sampled = sampled_area(part, Sensor(), view, r, np.array([0]))
+    fine = refine(part, 0.2)
+    hit = trace_counts(fine, Sensor(), view).counts.toarray()[:, 0] > 0
+    centres = fine.vertices[fine.faces].mean(axis=1)
+    parent = [part_face_of(part, c) for c in centres]
+    by_elements = np.bincount(parent, weights=fine.areas * hit, minlength=part.n_faces)
+    on_plate = np.arange(2)
+    assert sampled[on_plate] == pytest.approx(by_elements[on_plate], rel=0.05, abs=2.0)
+    assert sampled[on_plate].sum() == pytest.approx(20.0 * (10.0 - bar_to_x), rel=0.05)
+
+
+def part_face_of(part, point: np.ndarray) -> int:
+    """The face of `part` whose triangle holds `point` (mm)."""
+    tri = part.vertices[part.faces]
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    inside = np.ones(len(tri), dtype=bool)
+    for k in range(3):
+        edge = tri[:, (k + 1) % 3] - tri[:, k]
+        inside &= np.einsum("ij,ij->i", np.cross(edge, point - tri[:, k]), n) >= -1e-9
+    plane = np.abs(np.einsum("ij,ij->i", n, point - tri[:, 0])) <= 1e-6 * np.linalg.norm(n, axis=1)
+    return int(np.flatnonzero(inside & plane)[0])
+
+
+def test_element_hint_when_big_faces_are_seen_by_a_sliver_of_rays_and_not_after_refining():
+    mesh = shaded_plate(6.0)  # 80 of the plate's 400 mm² in view
+    part = part_from_arrays(mesh.vertices, mesh.faces)
+    view = look_down((0.0, 0.0, 500.0))
+    r = sp.csr_array(trace_counts(part, Sensor(), view).counts)
+    under = undersampled(part, Sensor(), view, r, np.array([0]), 1.0)
+    assert under.faces == 2 and under.area_mm2 == pytest.approx(400.0)
+    assert under.unsampled_mm2 == pytest.approx(320.0, rel=0.05)
+    coverable = part.area_mm2
+    assert "--max-face-area 1," in _element_hint(under, coverable)
+    fine = refine(part, 1.0)
+    r = sp.csr_array(trace_counts(fine, Sensor(), view).counts)
+    under = undersampled(fine, Sensor(), view, r, np.array([0]), 1.0)
+    assert under.faces == 0 and under.unsampled_mm2 == 0.0
+    assert _element_hint(under, fine.area_mm2) is None

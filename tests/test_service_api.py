@@ -53,6 +53,22 @@ def test_same_geometry_in_another_format_is_the_same_mesh(api) -> None:
     assert upload(api, stl, units="cm").json()["id"] != first["id"]  # 10× bigger: another part
 
 
+def test_upload_can_split_big_faces_into_area_elements(api) -> None:
+    stl = sample_stl()
+    plain = upload(api, stl).json()
+    r = api.post("/v1/meshes", files={"file": ("part.stl", stl)}, data={"max_face_area_mm2": "2"})
+    assert r.status_code == 201, r.text
+    body = r.json()
+    assert body["id"] != plain["id"] and body["faces"] > plain["faces"]
+    assert body["area_mm2"] == pytest.approx(plain["area_mm2"], rel=1e-9)
+    assert any(w.startswith("faces larger than 2 mm² split") for w in body["warnings"])
+    assert api.get(f"/v1/meshes/{body['id']}").json() == body
+    for bad in ("0", "-1", "nan", "big"):
+        r = api.post("/v1/meshes", files={"file": ("p.stl", stl)}, data={"max_face_area_mm2": bad})
+        problem = assert_problem(r, 422)
+        assert "max_face_area_mm2" in json.dumps(problem["errors"])
+
+
 def test_unknown_mesh_is_404_problem(api) -> None:
     assert_problem(api.get("/v1/meshes/" + "0" * 64), 404)
     assert_problem(api.get("/v1/nowhere"), 404)
@@ -69,6 +85,10 @@ def test_oversized_upload_is_413(svc_env, monkeypatch) -> None:
         body = assert_problem(upload(small, sample_stl()), 413)  # ~57 kB
         assert "limit" in body["detail"]
         assert upload(small, flanged_bushing(8).export(file_type="stl")).status_code == 201
+    with TestClient(create_app(Settings(max_faces=5_000))) as few:
+        form = {"max_face_area_mm2": "0.5"}
+        r = few.post("/v1/meshes", files={"file": ("p.stl", sample_stl())}, data=form)
+        assert "the limit is 5000" in assert_problem(r, 422)["detail"]
 
 
 def test_every_bad_mesh_gets_4xx_problem_never_5xx(api) -> None:

@@ -11,7 +11,12 @@
   reached only through cracks (tested on the faces seen by at most one candidate and the
   selected views' private faces, the ones that can force a view);
 - per selected view, its private faces: rows it alone satisfies (without it the row's demand
-  is not met). A view whose private faces are all of the kinds above is "driven" by them.
+  is not met). A view whose private faces are all of the kinds above is "driven" by them;
+- undersampled faces: faces larger than an area element (`ELEMENT_FOOTPRINTS` pixel
+  footprints) that the plan counts as seen while its rays land on less than half of their
+  area, estimated from each ray's footprint at the face centre. A face counts as seen when one
+  ray lands on it (SPEC §3), so a long CAD facet on a hole wall is "seen" when a view grazes
+  its rim; `--max-face-area` splits such faces into elements (vpp_core.refine).
 """
 
 from __future__ import annotations
@@ -24,6 +29,7 @@ from pydantic import BaseModel
 
 from vpp_core.cover import COVER_TOL, coverage
 from vpp_core.mesh import Part
+from vpp_core.pose import Viewpoints
 from vpp_core.rays import RayBackend
 from vpp_core.sensor import Sensor
 
@@ -39,6 +45,11 @@ WELL_SEEN_RAYS = 4
 """A single-candidate face with at least this many rays is real surface, not a stray ray."""
 SUGGESTED_TILT_DEG = 30
 """The candidate tilt the hint names (docs/cad-meshes.md)."""
+ELEMENT_FOOTPRINTS = 30
+"""The area element the hint names, in pixel footprints p² (1 mm² for the paper camera)."""
+UNSAMPLED_SHARE = 0.001
+"""The element hint is given when the plan's seen faces hold at least this share of the
+coverable area that none of its rays lands on."""
 
 
 class FaceGroup(BaseModel):
@@ -68,6 +79,14 @@ class Internal(BaseModel):
     directions: int
 
 
+class Undersampled(FaceGroup):
+    """Seen faces larger than `element_mm2` that the plan's rays land on less than half of;
+    `unsampled_mm2`: area of all seen faces larger than `element_mm2` that no ray lands on."""
+
+    element_mm2: float
+    unsampled_mm2: float
+
+
 class ViewCause(BaseModel):
     """A selected view's private faces, and how many of them are sub-pixel, single or internal."""
 
@@ -86,6 +105,7 @@ class Diagnostics(BaseModel):
     subpixel: FaceGroup
     single_candidate: SingleCandidate
     internal: Internal
+    undersampled: Undersampled | None = None
     viewpoints: list[ViewCause]
     driven_views: int
     driven_area_mm2: float
@@ -95,6 +115,7 @@ class Diagnostics(BaseModel):
 def diagnose(
     part: Part,
     sensor: Sensor,
+    views: Viewpoints,
     counts: sp.sparray,
     matrix: sp.csr_array,
     rows: np.ndarray,
@@ -103,7 +124,7 @@ def diagnose(
     partial: bool = False,
     normal_candidates: bool = False,
 ) -> Diagnostics:
-    """Diagnostics of views `selected` (K,) given R (M, N) and the cover rows (faces `rows`).
+    """Diagnostics of `views` `selected` (K,) given R (M, N) and the cover rows (faces `rows`).
 
     `partial`: a partial cover was asked for (no coverage hint); `normal_candidates`: the
     candidates were generated along the normals (tilt 0), so a tilt may be suggested.
@@ -129,6 +150,8 @@ def diagnose(
     first = r.indptr[:-1][single]
     rays = r.data[first]
     forced = np.intersect1d(r.indices[first[rays >= WELL_SEEN_RAYS]], selected)
+    under = undersampled(part, sensor, views, r, selected, ELEMENT_FOOTPRINTS * p * p)
+    coverable = float(areas[rows].sum())
     return Diagnostics(
         pixel_footprint_mm=p,
         subpixel=_group(subpixel, areas),
@@ -144,13 +167,59 @@ def diagnose(
             tested=len(tested),
             directions=ESCAPE_DIRECTIONS,
         ),
+        undersampled=under,
         viewpoints=causes,
         driven_views=len(driven),
         driven_area_mm2=driven_area,
         hint=_join(
+            _element_hint(under, coverable),
             _tilt_hint(len(forced), len(causes)) if normal_candidates else None,
-            None if partial else _hint(len(driven), len(causes), driven_area, areas[rows].sum()),
+            None if partial else _hint(len(driven), len(causes), driven_area, coverable),
         ),
+    )
+
+
+def sampled_area(
+    part: Part, sensor: Sensor, views: Viewpoints, counts: sp.csr_array, selected: np.ndarray
+) -> np.ndarray:
+    """(M,) mm² of each face that the rays of `views` `selected` (K,) land on, at most:
+    Σ_j R_ij · a_ij, a_ij a ray's footprint at the face centre, z³ / (d fx fy cos θ) for depth
+    z, distance d and incidence θ (the pixel's solid angle z cos α / fx fy, times d² / cos θ)."""
+    sub = sp.csc_array(counts[:, selected])
+    centres = part.vertices[part.faces].mean(axis=1)
+    cos_min = math.cos(math.radians(sensor.max_incidence_deg))
+    out = np.zeros(part.n_faces)
+    for k, j in enumerate(selected):
+        seg = slice(sub.indptr[k], sub.indptr[k + 1])
+        faces = sub.indices[seg]
+        d = centres[faces] - views.positions[j]
+        dist = np.linalg.norm(d, axis=1)
+        depth = d @ views.gazes[j]
+        cos = np.abs(np.einsum("ij,ij->i", part.normals[faces], d)) / dist
+        footprint = depth**3 / (dist * sensor.fx * sensor.fy * np.maximum(cos, cos_min))
+        out[faces] += sub.data[seg] * footprint
+    return out
+
+
+def undersampled(
+    part: Part,
+    sensor: Sensor,
+    views: Viewpoints,
+    counts: sp.csr_array,
+    selected: np.ndarray,
+    element_mm2: float,
+) -> Undersampled:
+    """Seen faces larger than `element_mm2` whose sampled area (`sampled_area`) is below half."""
+    element_mm2 = float(f"{element_mm2:.2g}")
+    areas = part.areas
+    large = part.counted & (areas > element_mm2)
+    large[large] = counts[np.flatnonzero(large)][:, selected].sum(axis=1) > 0
+    sampled = np.minimum(sampled_area(part, sensor, views, counts, selected), areas)
+    under = large & (sampled < 0.5 * areas)
+    return Undersampled(
+        **_group(under, areas).model_dump(),
+        element_mm2=element_mm2,
+        unsampled_mm2=float((areas - sampled)[large].sum()),
     )
 
 
@@ -260,6 +329,20 @@ def _tilt_hint(forced: int, views: int) -> str | None:
         f"normal (--tilt {SUGGESTED_TILT_DEG}, or candidates.tilt_deg): they see such faces "
         "from several poses (2-5x fewer views on machined parts), and reach more surface, "
         "which a strict cover must then cover too"
+    )
+
+
+def _element_hint(under: Undersampled, coverable: float) -> str | None:
+    """The hint when seen faces larger than an element hold area that no ray lands on."""
+    if coverable <= 0 or under.unsampled_mm2 < UNSAMPLED_SHARE * coverable:
+        return None
+    a = f"{under.element_mm2:g}"
+    return (
+        f"faces larger than {a} mm² count as seen when one ray lands on them: "
+        f"{under.unsampled_mm2:.3g} mm² of them ({under.unsampled_mm2 / coverable:.2%} of the "
+        f"coverable area) gets no ray from this plan, and {under.faces} get rays on less than "
+        f"half of their area; split them into area elements (--max-face-area {a}, or "
+        "max_face_area_mm2 at upload) so that seen means seen"
     )
 
 

@@ -142,6 +142,28 @@ def part_from_arrays(
     return _build_part(vertices, faces, _unit_scale(units), list(warnings))
 
 
+def part_from_children(part: Part, vertices: F64, faces: I64, parent: I64, note: str) -> Part:
+    """A Part (mm) whose face k is a piece of `part`'s face parent[k] (M',): in its plane, so it
+    keeps its outward normal and whether it counts; `note` joins the warnings."""
+    v, f = _canonical(np.asarray(vertices, dtype=np.float64), np.asarray(faces, dtype=np.int64))
+    areas, _, degenerate = _areas_normals(v, f)
+    rep = _representatives(f)
+    counted = part.counted[parent] & ~degenerate & (rep == np.arange(len(f)))
+    normals = np.where(degenerate[:, None], 0.0, part.normals[parent])
+    for a in (v, f, areas, normals, counted, rep):
+        a.setflags(write=False)
+    return Part(
+        vertices=v,
+        faces=f,
+        areas=areas,
+        normals=normals,
+        counted=counted,
+        representative=rep,
+        id=mesh_id(v, f),
+        warnings=(*part.warnings, note),
+    )
+
+
 # ---------------------------------------------------------------- input hints
 
 

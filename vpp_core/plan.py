@@ -211,6 +211,7 @@ def finish(
         doc.diagnostics = diagnose(
             part,
             request.sensor,
+            views,
             trace.counts,
             model.matrix,
             model.faces,

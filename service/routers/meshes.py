@@ -30,10 +30,21 @@ def upload_mesh(
     format: Annotated[
         str | None, Form(description="format when the filename does not tell")
     ] = None,
+    max_face_area_mm2: Annotated[
+        float | None,
+        Form(
+            gt=0,
+            allow_inf_nan=False,
+            description="split faces larger than this (mm²) before storing: area elements "
+            "for CAD exports with big facets (docs/cad-meshes.md); 1 for the paper camera",
+        ),
+    ] = None,
 ) -> MeshSummary:
     """Upload a mesh; the same geometry again gives the same id and stores nothing new."""
     data = planning.read_upload(file.file, settings.max_upload_bytes)
-    summary = planning.upload_mesh(store, settings, data, file.filename, format, units)
+    summary = planning.upload_mesh(
+        store, settings, data, file.filename, format, units, max_face_area_mm2
+    )
     response.headers["Location"] = f"/v1/meshes/{summary.id}"
     response.headers["ETag"] = f'"{summary.id}"'
     return summary

@@ -4,13 +4,15 @@ from __future__ import annotations
 
 import itertools
 
+import highspy
 import numpy as np
 import pytest
 import scipy.sparse as sp
 
 from tests.test_setcover import random_cover_model
 from vpp_core.errors import SolverError
-from vpp_core.partial import greedy_partial, satisfied_rows, solve_partial
+from vpp_core.lpbound import relaxation_bound, row_lagrangian
+from vpp_core.partial import _merged, _model, greedy_partial, satisfied_rows, solve_partial
 from vpp_core.reduce import row_groups
 from vpp_core.setcover import solve_cover
 
@@ -135,3 +137,51 @@ def test_bad_input_is_refused(weights, fraction):
 def test_row_groups_map_identical_rows_to_the_first():
     A = sp.csr_array(np.array([[1, 0.5], [0, 1], [1, 0.5], [0, 1], [1, 0]]))
     assert list(row_groups(A)) == [0, 1, 0, 1, 4]
+
+
+def partial_lp(A: sp.csr_array, w: np.ndarray, f: float):
+    """The merged partial model of A (M, N), weights w, fraction f as a HighsLp, unit costs."""
+    g = _merged(A, w, np.ones(A.shape[1]))
+    return _model(g, np.ones(g.A.shape[1]), f * w.sum())
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_relaxation_bound_is_the_lp_value_and_any_multipliers_bound_it(seed):
+    from scipy.optimize import linprog
+
+    rng = np.random.default_rng(seed)
+    A = random_model(rng, 30, 8, binary=seed % 2 == 0)
+    w = rng.random(30)
+    lp = partial_lp(A, w, 0.8)
+    a = lp.a_matrix_
+    M = sp.csc_array((a.value_, a.index_, a.start_), shape=(lp.num_row_, lp.num_col_))
+    ref = linprog(
+        lp.col_cost_, A_ub=-M, b_ub=-np.asarray(lp.row_lower_),
+        bounds=list(zip(lp.col_lower_, lp.col_upper_, strict=True)), method="highs-ipm",
+    )  # fmt: skip
+    assert relaxation_bound(lp, 10.0) == pytest.approx(ref.fun, abs=1e-7)
+    for _ in range(20):  # weak duality: every y >= 0 bounds the LP from below
+        assert row_lagrangian(lp, rng.random(lp.num_row_) * 3) <= ref.fun + 1e-9
+    assert relaxation_bound(lp, 10.0) <= brute_partial(A.toarray(), w, 0.8, np.ones(8)) + 1e-9
+
+
+def test_lp_bound_alone_proves_an_integral_relaxation(monkeypatch):
+    # disjoint views of equal area: any half of them is optimal and the LP value is n/2
+    monkeypatch.setattr("vpp_core.partial.solve_mip", lambda *a, **k: pytest.fail("MIP ran"))
+    out = solve_partial(sp.csr_array(np.eye(40)), np.ones(40), 0.5)
+    assert (out.result.status, out.result.objective, out.result.bound) == ("optimal", 20, 20)
+
+
+def test_bound_is_the_lp_bound_when_the_mip_is_killed(monkeypatch):
+    # a MIP killed at its deadline answers nothing (vpp_core.mip): the bound is still the LP's
+    from vpp_core.mip import MipAnswer
+
+    killed = MipAnswer(None, highspy.HighsModelStatus.kTimeLimit, -np.inf)
+    monkeypatch.setattr("vpp_core.partial.solve_mip", lambda *a, **k: killed)
+    rng = np.random.default_rng(1)
+    A = random_model(rng, 1000, 100, binary=True)
+    w = rng.random(1000)
+    out = solve_partial(A, w, 0.99, time_limit=30)
+    lp = relaxation_bound(partial_lp(A, w, 0.99), 30.0)
+    assert out.result.status == "time_limit" and out.result.objective > np.ceil(lp - 1e-6)
+    assert out.result.bound == np.ceil(lp - 1e-6) > 0

@@ -16,8 +16,13 @@ halfway by partial coefficients earns nothing. The model stays exact after:
 - z_i continuous on rows whose coefficients are all 1: there any x makes A_i·x an integer, so
   z_i > 0 only where the row is really satisfied.
 
-HiGHS solves it from a greedy start within the time limit; the status is "optimal" only when
-its dual bound meets the cover's cost. f = 1 is the strict cover (`solve_cover`).
+First the LP relaxation gives a bound (HiGHS's dual simplex on at most LP_SHARE of the time,
+the bound recomputed from its clipped row duals as a Lagrangian: `lpbound.row_lagrangian`),
+which proves the greedy start optimal when it meets its cost. Otherwise HiGHS solves the MIP
+from the greedy start in the time left; the bound is the larger of the two, so a model too big
+for HiGHS's MIP root in time still gets its LP bound (plate_holes on 1 mm² elements, 30 s: 6
+for an 8-view cover, where the MIP alone gave 0). The status is "optimal" only when the bound meets the
+cover's cost. f = 1 is the strict cover (`solve_cover`).
 """
 
 from __future__ import annotations
@@ -40,10 +45,13 @@ from vpp_core.cover import (
     integral_costs,
 )
 from vpp_core.errors import SolverError
+from vpp_core.lpbound import relaxation_bound
 from vpp_core.mip import solve_mip, warm
 from vpp_core.reduce import row_groups, undominated_columns
 from vpp_core.setcover import CoverResult, closes_gap, solve_cover
 
+LP_SHARE = 0.5
+"""The LP bound may take this share of the time limit; the MIP gets what it leaves."""
 WEIGHT_RTOL = 1e-9
 """Satisfied weight may fall short of f·W by this fraction of W (float summation)."""
 
@@ -210,12 +218,18 @@ def _milp(
     mip_rel_gap: float,
     threads: int | None,
 ) -> tuple[np.ndarray, str, float | None, float | None]:
-    """HiGHS on the merged model from `start`: (original columns, status, bound, time found)."""
+    """The LP bound, then HiGHS on the merged model from `start` if the bound leaves a gap:
+    (original columns, status, bound, time found)."""
     c = costs[g.cols]
+    model = functools.partial(_model, g, c, required)
+    integral = integral_costs(c)
+    lp = relaxation_bound(model(), LP_SHARE * (deadline - time.perf_counter()), threads)
+    bound, closed = closes_gap(max(lp, 0.0), float(c[start].sum()), integral)
+    if closed:
+        return g.cols[start], "optimal", bound, None
     x = np.zeros(g.A.shape[1])
     x[start] = 1.0
     z = satisfied_rows(g.A, start, BUILD_TOL).astype(float)
-    model = functools.partial(_model, g, c, required)
     time_limit = deadline - time.perf_counter()
     h = solve_mip(model, np.concatenate([x, z]), time_limit, mip_rel_gap, threads)
     best, found = start, None
@@ -223,11 +237,9 @@ def _milp(
         mip = np.flatnonzero(h.x[: g.A.shape[1]] > 0.5)
         if _reaches(g.A, mip, g.w, required) and c[mip].sum() < c[start].sum():
             best, found = prune_partial(g.A, mip, c, g.w, required), time.perf_counter()
-    objective = float(c[best].sum())
-    integral = integral_costs(c)
     dual = h.dual_bound if np.isfinite(h.dual_bound) else 0.0
-    bound, closed = closes_gap(dual, objective, integral)
-    return g.cols[best], _status(h.status, closed), max(bound, 0.0), found
+    bound, closed = closes_gap(max(dual, lp, 0.0), float(c[best].sum()), integral)
+    return g.cols[best], _status(h.status, closed), bound, found
 
 
 def _status(model_status: highspy.HighsModelStatus, closed: bool) -> str:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import itertools
+import time
 
 import highspy
 import numpy as np
@@ -11,7 +12,7 @@ import scipy.sparse as sp
 
 from tests.test_setcover import random_cover_model
 from vpp_core.errors import SolverError
-from vpp_core.lpbound import relaxation_bound, row_lagrangian
+from vpp_core.lpbound import Relaxation, relaxation_bound, row_lagrangian
 from vpp_core.partial import _merged, _model, greedy_partial, satisfied_rows, solve_partial
 from vpp_core.reduce import row_groups
 from vpp_core.setcover import solve_cover
@@ -139,6 +140,12 @@ def test_row_groups_map_identical_rows_to_the_first():
     assert list(row_groups(A)) == [0, 1, 0, 1, 4]
 
 
+def partial_model(A: sp.csr_array, w: np.ndarray, f: float) -> tuple:
+    """(merged A, unit costs, merged weights, required weight) of A (M, N), weights w, f."""
+    g = _merged(A, w, np.ones(A.shape[1]))
+    return g.A, np.ones(g.A.shape[1]), g.w, f * w.sum()
+
+
 def partial_lp(A: sp.csr_array, w: np.ndarray, f: float):
     """The merged partial model of A (M, N), weights w, fraction f as a HighsLp, unit costs."""
     g = _merged(A, w, np.ones(A.shape[1]))
@@ -185,3 +192,18 @@ def test_bound_is_the_lp_bound_when_the_mip_is_killed(monkeypatch):
     lp = relaxation_bound(partial_lp(A, w, 0.99), 30.0)
     assert out.result.status == "time_limit" and out.result.objective > np.ceil(lp - 1e-6)
     assert out.result.bound == np.ceil(lp - 1e-6) > 0
+
+
+def test_relaxation_runs_beside_the_caller_and_stops_when_cancelled():
+    # this LP takes dual simplex about 7 s on the 2-core machine
+    rng = np.random.default_rng(1)
+    A = random_model(rng, 4000, 200, binary=True)
+    w = rng.random(4000)
+    lp = partial_lp(A, w, 0.99)
+    t0 = time.perf_counter()
+    relaxation = Relaxation(lp, 60.0)
+    assert relaxation.bound(0.2) == -np.inf  # still running, and the caller is not blocked
+    relaxation.cancel()
+    bound = relaxation.bound(5.0)  # Lagrangian at whatever duals it had: still a bound
+    assert time.perf_counter() - t0 < 3.0
+    assert bound < len(greedy_partial(*partial_model(A, w, 0.99)))

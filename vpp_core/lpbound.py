@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import os
 import sys
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -156,8 +157,8 @@ def core_columns(A: sp.csr_array, reduced: np.ndarray, per_row: int) -> np.ndarr
 
 RELAXATION_OPTIONS: dict[str, HighsOption] = {"solver": "simplex"}
 """The partial cover's LP goes to dual simplex: on 1 mm² element models (featuretype, 17 008
-× 471 after merging; plate_holes, 45 296 × 488) it took 5 s and 14 s where the interior point
-took 27 s and had not finished after 60 s."""
+× 471 after merging, F = 0.999 / 0.99; plate_holes, 45 296 × 488) it took 5 / 17 s and 14 s
+where the interior point took 27 / 27 s and had not finished after 60 s."""
 
 
 def row_lagrangian(lp: highspy.HighsLp, y: np.ndarray) -> float:
@@ -171,18 +172,41 @@ def row_lagrangian(lp: highspy.HighsLp, y: np.ndarray) -> float:
     return float(y @ np.asarray(lp.row_lower_) + np.minimum(d * lo, d * up).sum())
 
 
+class Relaxation:
+    """The LP relaxation of a HiGHS model (integrality dropped), solved by HiGHS in a thread
+    (it releases the GIL) until its time limit or `cancel()`."""
+
+    def __init__(self, lp: highspy.HighsLp, time_limit: float, threads: int | None = None):
+        options = {"time_limit": max(float(time_limit), 0.01), **RELAXATION_OPTIONS}
+        self._h = silent_highs(options, threads)
+        self._h.HandleUserInterrupt = True  # cancelSolve() stops it
+        integrality, lp.integrality_ = lp.integrality_, []
+        try:
+            self._h.passModel(lp)
+        finally:
+            lp.integrality_ = integrality
+        self._lp, self._bound = lp, -np.inf
+        self._thread = threading.Thread(target=self._run, args=(threads,), daemon=True)
+        self._thread.start()
+
+    def _run(self, threads: int | None) -> None:
+        run_highs(self._h, threads)
+        solution = self._h.getSolution()
+        if solution.dual_valid:
+            y = np.nan_to_num(np.asarray(solution.row_dual, dtype=np.float64))
+            self._bound = row_lagrangian(self._lp, np.maximum(y, 0.0))
+
+    def bound(self, wait: float | None = None) -> float:
+        """`row_lagrangian` at the clipped row duals, once solved within `wait` s (None: until
+        done): a lower bound on the model's MIP; -inf if not solved by then."""
+        self._thread.join(None if wait is None else max(wait, 0.0))
+        return -np.inf if self._thread.is_alive() else self._bound
+
+    def cancel(self) -> None:
+        """Stop HiGHS (within milliseconds) if it is still running."""
+        self._h.cancelSolve()  # type: ignore[no-untyped-call]
+
+
 def relaxation_bound(lp: highspy.HighsLp, time_limit: float, threads: int | None = None) -> float:
-    """`row_lagrangian` of `lp` (integrality dropped) at the clipped row duals of its LP
-    relaxation, solved by HiGHS within `time_limit` s: a lower bound on its MIP (-inf if none)."""
-    h = silent_highs({"time_limit": max(float(time_limit), 0.01), **RELAXATION_OPTIONS}, threads)
-    integrality, lp.integrality_ = lp.integrality_, []
-    try:
-        h.passModel(lp)
-        run_highs(h, threads)
-    finally:
-        lp.integrality_ = integrality
-    solution = h.getSolution()
-    if not solution.dual_valid:
-        return -np.inf
-    y = np.maximum(np.nan_to_num(np.asarray(solution.row_dual, dtype=np.float64)), 0.0)
-    return row_lagrangian(lp, y)
+    """`Relaxation(lp, time_limit, threads).bound()`: the LP relaxation's bound, solved here."""
+    return Relaxation(lp, time_limit, threads).bound()

@@ -16,13 +16,14 @@ halfway by partial coefficients earns nothing. The model stays exact after:
 - z_i continuous on rows whose coefficients are all 1: there any x makes A_i·x an integer, so
   z_i > 0 only where the row is really satisfied.
 
-First the LP relaxation gives a bound (HiGHS's dual simplex on at most LP_SHARE of the time,
-the bound recomputed from its clipped row duals as a Lagrangian: `lpbound.row_lagrangian`),
-which proves the greedy start optimal when it meets its cost. Otherwise HiGHS solves the MIP
-from the greedy start in the time left; the bound is the larger of the two, so a model too big
-for HiGHS's MIP root in time still gets its LP bound (plate_holes on 1 mm² elements, 30 s: 6
-for an 8-view cover, where the MIP alone gave 0). The status is "optimal" only when the bound meets the
-cover's cost. f = 1 is the strict cover (`solve_cover`).
+The LP relaxation gives a bound (HiGHS's dual simplex in a thread, until the deadline; the
+bound is recomputed from its clipped row duals as a Lagrangian: `lpbound.row_lagrangian`).
+When it meets the greedy start's cost within LP_HEAD_START_S, that is the answer. Otherwise
+HiGHS solves the MIP from the greedy start in its child process (vpp_core.mip) while the LP
+goes on beside it (HiGHS releases the GIL); the bound is the larger of the two. So a model
+too big for the MIP's root in time still gets its LP bound (plate_holes on 1 mm² elements at
+30 s: 6 for an 8-view cover, where the MIP alone gave 0). The status is "optimal" only when
+the bound meets the cover's cost. f = 1 is the strict cover (`solve_cover`).
 """
 
 from __future__ import annotations
@@ -45,13 +46,13 @@ from vpp_core.cover import (
     integral_costs,
 )
 from vpp_core.errors import SolverError
-from vpp_core.lpbound import relaxation_bound
-from vpp_core.mip import solve_mip, warm
+from vpp_core.lpbound import Relaxation
+from vpp_core.mip import GRACE_S, solve_mip, warm
 from vpp_core.reduce import row_groups, undominated_columns
 from vpp_core.setcover import CoverResult, closes_gap, solve_cover
 
-LP_SHARE = 0.5
-"""The LP bound may take this share of the time limit; the MIP gets what it leaves."""
+LP_HEAD_START_S = 0.5
+"""The LP runs alone this long (at most) before the MIP starts beside it."""
 WEIGHT_RTOL = 1e-9
 """Satisfied weight may fall short of f·W by this fraction of W (float summation)."""
 
@@ -218,27 +219,33 @@ def _milp(
     mip_rel_gap: float,
     threads: int | None,
 ) -> tuple[np.ndarray, str, float | None, float | None]:
-    """The LP bound, then HiGHS on the merged model from `start` if the bound leaves a gap:
-    (original columns, status, bound, time found)."""
+    """The LP bound (in a thread) and, if it leaves a gap, HiGHS on the merged model from
+    `start` beside it: (original columns, status, bound, time found)."""
     c = costs[g.cols]
     model = functools.partial(_model, g, c, required)
     integral = integral_costs(c)
-    lp = relaxation_bound(model(), LP_SHARE * (deadline - time.perf_counter()), threads)
-    bound, closed = closes_gap(max(lp, 0.0), float(c[start].sum()), integral)
-    if closed:
-        return g.cols[start], "optimal", bound, None
-    x = np.zeros(g.A.shape[1])
-    x[start] = 1.0
-    z = satisfied_rows(g.A, start, BUILD_TOL).astype(float)
-    time_limit = deadline - time.perf_counter()
-    h = solve_mip(model, np.concatenate([x, z]), time_limit, mip_rel_gap, threads)
-    best, found = start, None
-    if h.x is not None:
-        mip = np.flatnonzero(h.x[: g.A.shape[1]] > 0.5)
-        if _reaches(g.A, mip, g.w, required) and c[mip].sum() < c[start].sum():
-            best, found = prune_partial(g.A, mip, c, g.w, required), time.perf_counter()
-    dual = h.dual_bound if np.isfinite(h.dual_bound) else 0.0
-    bound, closed = closes_gap(max(dual, lp, 0.0), float(c[best].sum()), integral)
+    relaxation = Relaxation(model(), deadline - time.perf_counter(), threads)
+    try:
+        lp = max(relaxation.bound(LP_HEAD_START_S), 0.0)
+        bound, closed = closes_gap(lp, c[start].sum(), integral)
+        if closed:
+            return g.cols[start], "optimal", bound, None
+        x = np.zeros(g.A.shape[1])
+        x[start] = 1.0
+        z = satisfied_rows(g.A, start, BUILD_TOL).astype(float)
+        time_limit = deadline - time.perf_counter()
+        h = solve_mip(model, np.concatenate([x, z]), time_limit, mip_rel_gap, threads)
+        best, found = start, None
+        if h.x is not None:
+            mip = np.flatnonzero(h.x[: g.A.shape[1]] > 0.5)
+            if _reaches(g.A, mip, g.w, required) and c[mip].sum() < c[start].sum():
+                best, found = prune_partial(g.A, mip, c, g.w, required), time.perf_counter()
+        dual = h.dual_bound if np.isfinite(h.dual_bound) else 0.0
+        if not closes_gap(dual, c[best].sum(), integral)[1]:  # the LP may still close it
+            dual = max(dual, relaxation.bound(deadline + GRACE_S - time.perf_counter()))
+    finally:
+        relaxation.cancel()
+    bound, closed = closes_gap(max(dual, 0.0), c[best].sum(), integral)
     return g.cols[best], _status(h.status, closed), bound, found
 
 

@@ -35,6 +35,9 @@ def test_s_matches_the_spec_formula(seed, res):
     assert np.allclose(model.matrix.toarray(), s[seen])
     assert model.uncoverable.tolist() == np.flatnonzero(counted & ~seen).tolist()
     assert model.matrix.max() <= 1.0 and model.matrix.min() >= 0.0
+    dense = (delta.sum(1) >= target * (1 - 1e-9)) & (areas > 0)
+    assert np.array_equal(model.density_rows, dense[seen])
+    assert np.all(model.matrix.data > 0)  # no stored zeros
 
 
 def test_visibility_rows_are_zero_one():

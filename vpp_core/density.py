@@ -51,21 +51,26 @@ def cover_model(
     resolution_mm: float,
     formulation: Formulation = "density",
 ) -> CoverModel:
-    """The covering rows for a target resolution r̄ (mm): S for `density`, V for `visibility`."""
+    """The covering rows for a target resolution r̄ (mm): S for `density`, V for `visibility`.
+
+    Built on the seen rows' own sparsity pattern, one nnz-sized float array at a time (R of a
+    309 k-face, 500-candidate model has 29 M entries, 0.35 GB per float64 CSR copy)."""
     r = sp.csr_array(counts)
-    visible = sp.csr_array(r, dtype=np.float64)
-    visible.data[:] = 1.0
     seen = np.diff(r.indptr) > 0
     uncoverable = np.flatnonzero(counted & ~seen)
     rows = np.flatnonzero(seen)
+    sub = sp.csr_array(r[rows])
+    per_row = np.diff(sub.indptr)
     if formulation == "visibility":
-        return CoverModel(visible[rows], rows, np.zeros(len(rows), bool), uncoverable)
-    target = 1.0 / resolution_mm
-    delta = density_matrix(r, areas)
-    dense_enough = meets(np.asarray(delta.sum(axis=1)).ravel(), target) & (areas > 0)
-    s = delta.multiply(1.0 / target).tocsr()
-    s.data = np.minimum(s.data, 1.0)
-    matrix = sp.csr_array(sp.diags_array(dense_enough.astype(float)) @ s) + sp.csr_array(
-        sp.diags_array((~dense_enough).astype(float)) @ visible
-    )
-    return CoverModel(sp.csr_array(matrix[rows]), rows, dense_enough[rows], uncoverable)
+        data, dense_enough = np.ones(sub.nnz), np.zeros(len(rows), bool)
+    else:
+        a = areas[rows]
+        inv_area = np.divide(1.0, a, out=np.zeros(len(rows)), where=a > 0)
+        data = np.repeat(inv_area, per_row)
+        np.sqrt(np.multiply(sub.data, data, out=data), out=data)  # δ_ij
+        dense_enough = meets(np.add.reduceat(data, sub.indptr[:-1]), 1.0 / resolution_mm)
+        dense_enough &= a > 0
+        np.minimum(np.multiply(data, resolution_mm, out=data), 1.0, out=data)  # S_ij
+        data[~np.repeat(dense_enough, per_row)] = 1.0  # V_ij on rows short of δ̄
+    matrix = sp.csr_array((data, sub.indices, sub.indptr), shape=sub.shape)
+    return CoverModel(matrix, rows, dense_enough, uncoverable)

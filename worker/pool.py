@@ -123,11 +123,16 @@ class WorkerPool:
             stop_workers(self.procs, wait_s)
 
 
+_PRCTL = ctypes.CDLL(None, use_errno=True).prctl if sys.platform.startswith("linux") else None
+"""libc's prctl, looked up here: a dlopen between fork and exec can deadlock on the loader lock
+that another thread of the parent held when it forked."""
+
+
 def die_with_parent() -> None:
-    """Linux: SIGTERM this child when its parent dies (a killed `vpp serve` leaves no workers)."""
-    if sys.platform.startswith("linux"):
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
+    """Linux: SIGTERM this child when its parent dies (a killed `vpp serve` leaves no workers).
+    Runs between fork and exec (`preexec_fn`), so it only calls the prctl found at import."""
+    if _PRCTL is not None:
+        _PRCTL(PR_SET_PDEATHSIG, signal.SIGTERM)
 
 
 def stop_workers(procs: list[subprocess.Popen[bytes]], wait_s: float = STOP_WAIT_S) -> None:

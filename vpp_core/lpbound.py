@@ -111,6 +111,12 @@ def run_highs(
         h.run()
 
 
+def clipped_duals(solution: highspy.HighsSolution) -> np.ndarray:
+    """HiGHS's row duals of `solution`, NaN as 0 and clipped to >= 0: multipliers of a
+    Lagrangian bound that holds whatever the LP solver's tolerances were."""
+    return np.maximum(np.nan_to_num(np.asarray(solution.row_dual, dtype=np.float64)), 0.0)
+
+
 def lp_bound(
     A: sp.csr_array, costs: np.ndarray, time_limit: float, threads: int | None = None
 ) -> LpBound:
@@ -124,10 +130,8 @@ def lp_bound(
     h.passModel(highs_model(A, costs))
     run_highs(h, threads)
     solution = h.getSolution()
-    u = np.zeros(m)
+    u = clipped_duals(solution) if solution.dual_valid else np.zeros(m)
     x = np.zeros(n)
-    if solution.dual_valid:
-        u = np.maximum(np.nan_to_num(np.asarray(solution.row_dual, dtype=np.float64)), 0.0)
     if solution.value_valid:
         x = np.clip(np.asarray(solution.col_value, dtype=np.float64), 0.0, 1.0)
     bound, reduced = lagrangian(A, costs, u)
@@ -193,8 +197,7 @@ class Relaxation:
         run_highs(self._h, threads)
         solution = self._h.getSolution()
         if solution.dual_valid:
-            y = np.nan_to_num(np.asarray(solution.row_dual, dtype=np.float64))
-            self._bound = row_lagrangian(self._lp, np.maximum(y, 0.0))
+            self._bound = row_lagrangian(self._lp, clipped_duals(solution))
 
     def bound(self, wait: float | None = None) -> float:
         """`row_lagrangian` at the clipped row duals, once solved within `wait` s (None: until

@@ -150,18 +150,7 @@ def part_from_children(part: Part, vertices: F64, faces: I64, parent: I64, note:
     rep = _representatives(f)
     counted = part.counted[parent] & ~degenerate & (rep == np.arange(len(f)))
     normals = np.where(degenerate[:, None], 0.0, part.normals[parent])
-    for a in (v, f, areas, normals, counted, rep):
-        a.setflags(write=False)
-    return Part(
-        vertices=v,
-        faces=f,
-        areas=areas,
-        normals=normals,
-        counted=counted,
-        representative=rep,
-        id=mesh_id(v, f),
-        warnings=(*part.warnings, note),
-    )
+    return _frozen_part(v, f, areas, normals, counted, rep, (*part.warnings, note))
 
 
 # ---------------------------------------------------------------- input hints
@@ -200,9 +189,22 @@ def _build_part(
     normals *= signs[:, None]
     dup = ~degenerate & ~counted
     normals[dup] = normals[rep[dup]]
+    notes += _exclusion_notes(degenerate, counted) + orient_notes
+    return _frozen_part(v, f, areas, normals, counted, rep, tuple(notes))
+
+
+def _frozen_part(
+    v: F64,
+    f: I64,
+    areas: F64,
+    normals: F64,
+    counted: NDArray[np.bool_],
+    rep: I64,
+    warnings: tuple[str, ...],
+) -> Part:
+    """The Part of these arrays, made read-only, with its content id."""
     for a in (v, f, areas, normals, counted, rep):
         a.setflags(write=False)
-    notes += _exclusion_notes(degenerate, counted) + orient_notes
     return Part(
         vertices=v,
         faces=f,
@@ -211,7 +213,7 @@ def _build_part(
         counted=counted,
         representative=rep,
         id=mesh_id(v, f),
-        warnings=tuple(notes),
+        warnings=warnings,
     )
 
 

@@ -24,12 +24,12 @@ from vpp_core.document import (
     Target,
 )
 from vpp_core.errors import VppError
-from vpp_core.mesh import UNITS_TO_MM, Part, load_mesh
+from vpp_core.mesh import UNITS_TO_MM, Part
 from vpp_core.plan import plan
 from vpp_core.pointcloud import CloudStats, simulate_plan, write_ply
 from vpp_core.rays import DEFAULT_BACKEND
 from vpp_core.raytrace import BACKENDS
-from vpp_core.refine import refine
+from vpp_core.refine import load_refined
 from vpp_core.samples import sample_stl
 from vpp_core.sensor import make_sensor
 from vpp_core.studies import (
@@ -327,10 +327,7 @@ def _load(args: argparse.Namespace, settings: Settings) -> Part:
     """The mesh file of the command line as a Part, within the settings' limits."""
     data = _read(args.mesh, settings.max_upload_bytes)
     fmt = args.format or args.mesh.suffix.lstrip(".") or "stl"
-    part = load_mesh(data, fmt, args.units, max_faces=settings.max_faces)
-    if args.max_face_area is None:
-        return part
-    return refine(part, args.max_face_area, max_faces=settings.max_faces)
+    return load_refined(data, fmt, args.units, args.max_face_area, max_faces=settings.max_faces)
 
 
 def _write_all(folder: Path, files: dict[str, bytes]) -> None:

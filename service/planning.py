@@ -15,9 +15,8 @@ from rq import Queue
 from service.models import JobOut, MeshSummary, PlanSubmit, RelatedPlan, RelatedPlans, StudySubmit
 from vpp_core.document import PlanRequest
 from vpp_core.errors import NotFoundError, TooLargeError, VppError
-from vpp_core.mesh import load_mesh
 from vpp_core.plan import check_request
-from vpp_core.refine import refine
+from vpp_core.refine import load_refined
 from vpp_core.scene import geometry_scene, plan_scene
 from vpp_core.studies import check_study
 from worker import artifacts as art
@@ -62,9 +61,7 @@ def upload_mesh(
     """Check and store a mesh (its faces split to `max_face_area_mm2` if given); the same
     geometry again gives the same id and stores nothing."""
     file_type = fmt or PurePath(filename or "").suffix.lstrip(".") or "stl"
-    part = load_mesh(data, file_type, units, max_faces=settings.max_faces)
-    if max_face_area_mm2 is not None:
-        part = refine(part, max_face_area_mm2, max_faces=settings.max_faces)
+    part = load_refined(data, file_type, units, max_face_area_mm2, max_faces=settings.max_faces)
     key = art.summary_key(part.id)
     if store.exists(key) and store.exists(art.mesh_key(part.id)):
         return MeshSummary.model_validate_json(store.get(key))

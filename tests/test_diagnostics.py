@@ -21,6 +21,7 @@ from vpp_core.diagnostics import (
 )
 from vpp_core.document import CandidateGenerator, PlanRequest, Target
 from vpp_core.mesh import part_from_arrays
+from vpp_core.pose import make_viewpoints
 from vpp_core.raytrace import make_backend, trace_counts
 from vpp_core.refine import refine
 from vpp_core.sensor import Sensor
@@ -177,6 +178,23 @@ def test_sampled_area_agrees_with_the_elements_that_get_rays(bar_to_x):
     on_plate = np.arange(2)
     assert sampled[on_plate] == pytest.approx(by_elements[on_plate], rel=0.05, abs=2.0)
     assert sampled[on_plate].sum() == pytest.approx(20.0 * (10.0 - bar_to_x), rel=0.05)
+
+
+def test_sampled_area_stays_positive_when_the_face_centre_is_behind_the_camera():
+    """A 3 m long triangle seen at 60° from its normal around its wide end: its centre lies
+    behind the camera's plane, yet the rays landing near the camera's target make a positive
+    area, well under half the face's (it is undersampled)."""
+    part = part_from_arrays(
+        np.array([[-50.0, 50, 0], [0, -3000, 0], [50, 50, 0]]), np.array([[0, 1, 2]])
+    )
+    camera = np.array([[0.0, -433.0, 250.0]])
+    view = make_viewpoints(camera, -camera / np.linalg.norm(camera))
+    assert (part.vertices[part.faces].mean(axis=1) - camera) @ view.gazes[0] < 0
+    r = sp.csr_array(trace_counts(part, Sensor(), view).counts)
+    assert r.nnz == 1
+    sampled = sampled_area(part, Sensor(), view, r, np.array([0]))
+    assert 0 < sampled[0] < part.areas[0] / 2
+    assert undersampled(part, Sensor(), view, r, np.array([0]), 1.0).faces == 1
 
 
 def part_face_of(part, point: np.ndarray) -> int:

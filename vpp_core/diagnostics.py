@@ -184,7 +184,9 @@ def sampled_area(
 ) -> np.ndarray:
     """(M,) mm² of each face that the rays of `views` `selected` (K,) land on, at most:
     Σ_j R_ij · a_ij, a_ij a ray's footprint at the face centre, z³ / (d fx fy cos θ) for depth
-    z, distance d and incidence θ (the pixel's solid angle z cos α / fx fy, times d² / cos θ)."""
+    z, distance d and incidence θ (the pixel's solid angle z cos α / fx fy, times d² / cos θ).
+    z is clipped to the depth of field, where every counted ray lands: a big face's centre can
+    lie out of it, even behind the camera."""
     sub = sp.csc_array(counts[:, selected])
     centres = part.vertices[part.faces].mean(axis=1)
     cos_min = math.cos(math.radians(sensor.max_incidence_deg))
@@ -194,7 +196,7 @@ def sampled_area(
         faces = sub.indices[seg]
         d = centres[faces] - views.positions[j]
         dist = np.linalg.norm(d, axis=1)
-        depth = d @ views.gazes[j]
+        depth = np.clip(d @ views.gazes[j], sensor.near_mm, sensor.far_mm)
         cos = np.abs(np.einsum("ij,ij->i", part.normals[faces], d)) / dist
         footprint = depth**3 / (dist * sensor.fx * sensor.fy * np.maximum(cos, cos_min))
         out[faces] += sub.data[seg] * footprint

@@ -29,13 +29,14 @@ from redis import Redis
 from rq.exceptions import NoSuchJobError
 from rq.job import Job
 from rq.registry import StartedJobRegistry
+from rq.worker import Worker
 
 from tests.test_service_jobs import same_plan, submit, upload_sample, wait
 from vpp_core.document import PlanDocument, PlanRequest
 from vpp_core.mesh import load_mesh
 from vpp_core.plan import plan
 from vpp_core.samples import sample_stl
-from worker.pool import WorkerPool, die_with_parent, stop_workers, worker_env
+from worker.pool import PARENT_ENV, WorkerPool, die_with_parent, stop_workers, worker_env
 from worker.store import FileStore
 
 pytestmark = pytest.mark.slow
@@ -107,9 +108,9 @@ class Workers:
         self.url, self.log = url, log.open("ab")
         self.procs: dict[str, subprocess.Popen[bytes]] = {}
 
-    def start(self, name: str, preexec: Callable[[], None] = die_with_parent) -> None:
+    def start(self, name: str, preexec: Callable[[], None] | None = None) -> None:
         cmd = [sys.executable, "-m", "worker", "--url", self.url, "--name", name]
-        env = worker_env(1, 1)
+        env = {**worker_env(1, 1), PARENT_ENV: str(os.getpid())}
         self.procs[name] = subprocess.Popen(
             cmd, env=env, stdout=self.log, stderr=subprocess.STDOUT, preexec_fn=preexec
         )
@@ -312,6 +313,33 @@ def test_a_killed_worker_process_is_started_again_by_its_pool(env, tmp_path) -> 
             pool.stop(wait_s=5)
 
 
+def test_a_worker_ends_when_the_process_that_started_it_is_killed(env) -> None:
+    """`start_worker` spawns without preexec_fn; the worker sets its own parent-death signal."""
+    code = "import sys, time; from worker.pool import start_workers; "
+    code += "print(start_workers(sys.argv[1], 1, threads=1)[0].pid, flush=True); time.sleep(120)"
+    cmd = [sys.executable, "-c", code, env["VPP_REDIS_URL"]]
+    with subprocess.Popen(cmd, stdout=subprocess.PIPE) as parent:
+        try:
+            assert parent.stdout is not None
+            pid = int(parent.stdout.readline())
+            until(lambda: _worker_registered(env["VPP_REDIS_URL"], pid), 30, "the worker up")
+        finally:
+            parent.kill()
+    until(lambda: not _running(pid), 20, "the orphaned worker gone")
+
+
+def _worker_registered(url: str, pid: int) -> bool:
+    return any(w.pid == pid for w in Worker.all(connection=Redis.from_url(url)))
+
+
+def _running(pid: int) -> bool:
+    """Whether process `pid` exists and is no zombie."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
 # ---------------------------------------------------------------- 3. Redis stops and restarts
 
 
@@ -499,7 +527,6 @@ def _partial(folder: Path) -> list[Path]:
 
 def _small_files() -> None:
     """A worker that may write no file over 512 KiB: write() fails with EFBIG (no SIGXFSZ)."""
-    die_with_parent()
     signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
     resource.setrlimit(resource.RLIMIT_FSIZE, (2**19, 2**19))
 

@@ -25,6 +25,7 @@ from rq.job import Job  # noqa: E402
 
 import worker.jobs  # noqa: E402,F401
 from worker.jobs import connect  # noqa: E402
+from worker.pool import follow_parent  # noqa: E402
 from worker.settings import Settings, get_settings  # noqa: E402
 
 RECONNECT_S = 1.0
@@ -68,6 +69,7 @@ def make_worker(conn: Redis, settings: Settings, name: str | None) -> VppWorker:
 
 def main(argv: list[str] | None = None) -> None:
     """Run one worker on the plan queue until stopped (or until empty with --burst)."""
+    follow_parent()
     parser = argparse.ArgumentParser(prog="python -m worker")
     parser.add_argument("--url", help="Redis URL (default: VPP_REDIS_URL)")
     parser.add_argument("--name", help="worker name (default: RQ's)")

@@ -18,6 +18,8 @@ PR_SET_PDEATHSIG = 1
 """prctl option: the signal a child gets when its parent dies."""
 STOP_WAIT_S = 10.0
 """Seconds a worker gets to finish its warm shutdown before it is killed."""
+PARENT_ENV = "VPP_PARENT_PID"
+"""Environment variable through which `start_worker` tells a worker whose end to follow."""
 CHECK_S = 1.0
 """Seconds between two looks of a WorkerPool at its processes (a dead one is replaced then)."""
 
@@ -48,14 +50,14 @@ def start_workers(
 def start_worker(
     url: str, name: str, env: Mapping[str, str], burst: bool = False, log: IO[bytes] | None = None
 ) -> subprocess.Popen[bytes]:
-    """One `python -m worker` process called `name`."""
+    """One `python -m worker` process called `name`; it ends when this process does
+    (`follow_parent`, set up by the worker itself: no `preexec_fn`, so the spawn is a vfork)."""
     cmd = [sys.executable, "-m", "worker", "--url", url, "--name", name]
     return subprocess.Popen(
         cmd + (["--burst"] if burst else []),
-        env=env,
+        env={**env, PARENT_ENV: str(os.getpid())},
         stdout=log,
         stderr=log and subprocess.STDOUT,
-        preexec_fn=die_with_parent,
     )
 
 
@@ -133,6 +135,17 @@ def die_with_parent() -> None:
     Runs between fork and exec (`preexec_fn`), so it only calls the prctl found at import."""
     if _PRCTL is not None:
         _PRCTL(PR_SET_PDEATHSIG, signal.SIGTERM)
+
+
+def follow_parent() -> None:
+    """In a worker that `start_worker` started: `die_with_parent`, and exit at once when that
+    parent (PARENT_ENV) has already gone. Called first thing after exec."""
+    parent = os.environ.get(PARENT_ENV)
+    if parent is None:
+        return
+    die_with_parent()
+    if os.getppid() != int(parent):
+        raise SystemExit(f"vpp: the process that started this worker ({parent}) has gone")
 
 
 def stop_workers(procs: list[subprocess.Popen[bytes]], wait_s: float = STOP_WAIT_S) -> None:

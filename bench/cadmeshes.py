@@ -2,7 +2,8 @@
 
     python bench/cadmeshes.py MESH UNITS EDGE_MM [--candidates 500] [--seed 0] [--tilt 0]
                               [--fractions 1,0.999,0.99] [--time-limit 30] [--cad-only]
-                              [--max-face-area MM2] [--subdivide MM] [--formulations ...]
+                              [--remesh MM] [--max-face-area MM2] [--subdivide MM]
+                              [--formulations ...]
 
 MESH is traced once per tessellation (the file itself, "cad", and a pymeshlab isotropic
 remesh with ~EDGE_MM edges and features over 30° kept, "iso"). Then each formulation is solved at
@@ -12,9 +13,11 @@ both tessellations, each plan's viewpoints are then traced on the other tessella
 `cross_seen` says which share of that tessellation's reachable area (seen by its own
 candidates) they see: the plan's coverage, judged by an independent trace on other faces.
 The tables of docs/cad-meshes.md come from this. Needs pymeshlab (`pip install -e '.[remesh]'`;
-the test extra has it too). --max-face-area MM2 splits both tessellations' faces into area
-elements of at most MM2 mm² (vpp_core.refine, what `vpp plan --max-face-area` does);
---subdivide MM splits them until every edge is at most MM mm (trimesh.remesh.subdivide_to_size).
+the test extra has it too). --remesh MM remeshes both tessellations again, at MM mm edges
+(vpp_core.remesh.remesh, what `vpp plan --remesh` does); --max-face-area MM2 splits both
+tessellations' faces into area elements of at most MM2 mm² (vpp_core.refine, what
+`vpp plan --max-face-area` does); --subdivide MM splits them until every edge is at most
+MM mm (trimesh.remesh.subdivide_to_size).
 """
 
 from __future__ import annotations
@@ -35,7 +38,7 @@ from vpp_core.plan import candidates_for, finish
 from vpp_core.pose import Viewpoints
 from vpp_core.raytrace import make_backend, trace_counts
 from vpp_core.refine import refine
-from vpp_core.remesh import isotropic_remesh
+from vpp_core.remesh import isotropic_remesh, remesh
 from vpp_core.sensor import Sensor
 
 
@@ -68,6 +71,7 @@ def rows(part: Part, label: str, args: argparse.Namespace) -> dict[tuple[str, fl
                         "tessellation": label,
                         "seed": args.seed,
                         "tilt_deg": args.tilt,
+                        "remesh_mm": args.remesh,
                         "max_face_area_mm2": args.max_face_area,
                         "faces": part.n_faces,
                         "median_face_mm2": float(np.median(part.areas)),
@@ -155,7 +159,10 @@ def load_pair(args: argparse.Namespace) -> tuple[Part, Part, str]:
 
 
 def subdivided(part: Part, args: argparse.Namespace) -> Part:
-    """`part` split into area elements (--max-face-area) or short edges (--subdivide)."""
+    """`part` remeshed (--remesh), split into area elements (--max-face-area) or short edges
+    (--subdivide)."""
+    if args.remesh is not None:
+        part = remesh(part, args.remesh)
     if args.max_face_area is not None:
         part = refine(part, args.max_face_area)
     if args.subdivide is None:
@@ -169,6 +176,7 @@ def main() -> None:
     parser.add_argument("--candidates", type=int, default=500)
     parser.add_argument("--tilt", type=float, default=0.0, help="candidates.tilt_deg")
     parser.add_argument("--cad-only", action="store_true", help="skip the remesh")
+    parser.add_argument("--remesh", type=float, metavar="MM", help="remesh both at MM mm edges")
     parser.add_argument("--max-face-area", type=float, metavar="MM2", help="area elements")
     parser.add_argument("--subdivide", type=float, metavar="MM", help="split faces to edges <= MM")
     parser.add_argument(

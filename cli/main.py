@@ -29,7 +29,6 @@ from vpp_core.plan import plan
 from vpp_core.pointcloud import CloudStats, simulate_plan, write_ply
 from vpp_core.rays import DEFAULT_BACKEND
 from vpp_core.raytrace import BACKENDS
-from vpp_core.refine import load_refined
 from vpp_core.samples import sample_stl
 from vpp_core.sensor import make_sensor
 from vpp_core.studies import (
@@ -41,6 +40,7 @@ from vpp_core.studies import (
     resolution_sweep,
     study_csv,
 )
+from vpp_core.tessellate import load_part
 from worker.settings import Settings, get_settings
 
 EXIT_INPUT = 2
@@ -138,6 +138,13 @@ def _plan_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("mesh", type=Path, help="mesh file: STL, OBJ, PLY, OFF, GLB, GLTF")
     p.add_argument("--units", default="mm", choices=sorted(UNITS_TO_MM), help="mesh file units")
     p.add_argument("--format", help="mesh format if the extension does not tell")
+    p.add_argument(
+        "--remesh",
+        type=float,
+        metavar="MM",
+        help="plan on an isotropic remesh with edges of about MM mm (needs pymeshlab): the "
+        "count of the surface, not of its export (docs/cad-meshes.md)",
+    )
     p.add_argument(
         "--max-face-area",
         type=float,
@@ -327,7 +334,14 @@ def _load(args: argparse.Namespace, settings: Settings) -> Part:
     """The mesh file of the command line as a Part, within the settings' limits."""
     data = _read(args.mesh, settings.max_upload_bytes)
     fmt = args.format or args.mesh.suffix.lstrip(".") or "stl"
-    return load_refined(data, fmt, args.units, args.max_face_area, max_faces=settings.max_faces)
+    return load_part(
+        data,
+        fmt,
+        args.units,
+        remesh_mm=args.remesh,
+        max_face_area_mm2=args.max_face_area,
+        max_faces=settings.max_faces,
+    )
 
 
 def _write_all(folder: Path, files: dict[str, bytes]) -> None:

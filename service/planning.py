@@ -16,9 +16,9 @@ from service.models import JobOut, MeshSummary, PlanSubmit, RelatedPlan, Related
 from vpp_core.document import PlanRequest
 from vpp_core.errors import NotFoundError, TooLargeError, VppError
 from vpp_core.plan import check_request
-from vpp_core.refine import load_refined
 from vpp_core.scene import geometry_scene, plan_scene
 from vpp_core.studies import check_study
+from vpp_core.tessellate import load_part
 from worker import artifacts as art
 from worker import queue as jobs
 from worker.settings import Settings
@@ -57,11 +57,20 @@ def upload_mesh(
     fmt: str | None,
     units: str,
     max_face_area_mm2: float | None = None,
+    remesh_mm: float | None = None,
 ) -> MeshSummary:
-    """Check and store a mesh (its faces split to `max_face_area_mm2` if given); the same
-    geometry again gives the same id and stores nothing."""
+    """Check and store a mesh (remeshed at `remesh_mm` and its faces split to
+    `max_face_area_mm2`, each if given); the same geometry again gives the same id and stores
+    nothing."""
     file_type = fmt or PurePath(filename or "").suffix.lstrip(".") or "stl"
-    part = load_refined(data, file_type, units, max_face_area_mm2, max_faces=settings.max_faces)
+    part = load_part(
+        data,
+        file_type,
+        units,
+        remesh_mm=remesh_mm,
+        max_face_area_mm2=max_face_area_mm2,
+        max_faces=settings.max_faces,
+    )
     key = art.summary_key(part.id)
     if store.exists(key) and store.exists(art.mesh_key(part.id)):
         return MeshSummary.model_validate_json(store.get(key))

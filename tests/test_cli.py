@@ -83,6 +83,17 @@ def test_max_face_area_plans_on_elements(plate_files, tmp_path):
     assert doc["metrics"]["resolution"]["met_area"] == pytest.approx(1.0)
 
 
+def test_remesh_plans_on_an_isotropic_remesh(plate_files, tmp_path):
+    pytest.importorskip("pymeshlab")
+    mesh, views = plate_files
+    out = tmp_path / "plan.json"
+    run = vpp("plan", mesh, "--candidates-file", views, "--remesh", "2", "-o", out, "-q")
+    assert run.returncode == 0, run.stderr
+    doc = json.loads(out.read_text())
+    assert any(w.startswith("remeshed at 2 mm edges: 2 faces ->") for w in doc["mesh"]["warnings"])
+    assert doc["mesh"]["faces"] > 100 and doc["metrics"]["coverage"]["area"] == pytest.approx(1.0)
+
+
 def test_plan_with_generated_candidates_writes_all_sections(tmp_path):
     mesh = tmp_path / "box.stl"
     trimesh.creation.box([60, 40, 20]).export(mesh)
@@ -215,6 +226,8 @@ def test_accepted_bad_meshes_plan_and_report_the_problem(name, tmp_path):
         (["--min-coverage", "1.5"], "min_coverage"),
         (["--max-face-area", "0"], "positive"),
         (["--max-face-area", "nan"], "positive"),
+        (["--remesh", "0"], "positive"),
+        (["--remesh", "inf"], "positive"),
     ],
 )
 def test_bad_options_fail_with_one_line_and_exit_2(plate_files, args, match):
@@ -254,6 +267,8 @@ def test_limits_are_settings(plate_files, monkeypatch):
     monkeypatch.setenv("VPP_MAX_FACES", "100")
     run = vpp("plan", mesh, "-q", "--max-face-area", "1")
     assert run.returncode == 2 and "gives 512 faces, the limit is 100" in run.stderr
+    run = vpp("plan", mesh, "-q", "--remesh", "1")
+    assert run.returncode == 2 and "gives about 924 faces, the limit is 100" in run.stderr
     monkeypatch.setenv("VPP_MAX_FACES", "1")
     run = vpp("plan", mesh, "-q")
     assert run.returncode == 2 and "limit is 1" in run.stderr

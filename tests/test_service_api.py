@@ -53,20 +53,28 @@ def test_same_geometry_in_another_format_is_the_same_mesh(api) -> None:
     assert upload(api, stl, units="cm").json()["id"] != first["id"]  # 10× bigger: another part
 
 
-def test_upload_can_split_big_faces_into_area_elements(api) -> None:
+@pytest.mark.parametrize(
+    "field, value, note, area_rel",
+    [
+        ("max_face_area_mm2", "2", "faces larger than 2 mm² split", 1e-9),
+        ("remesh_mm", "3", "remeshed at 3 mm edges", 0.01),
+    ],
+)
+def test_upload_can_remesh_or_split_faces(api, field, value, note, area_rel) -> None:
+    if field == "remesh_mm":
+        pytest.importorskip("pymeshlab")
     stl = sample_stl()
     plain = upload(api, stl).json()
-    r = api.post("/v1/meshes", files={"file": ("part.stl", stl)}, data={"max_face_area_mm2": "2"})
+    r = api.post("/v1/meshes", files={"file": ("part.stl", stl)}, data={field: value})
     assert r.status_code == 201, r.text
     body = r.json()
     assert body["id"] != plain["id"] and body["faces"] > plain["faces"]
-    assert body["area_mm2"] == pytest.approx(plain["area_mm2"], rel=1e-9)
-    assert any(w.startswith("faces larger than 2 mm² split") for w in body["warnings"])
+    assert body["area_mm2"] == pytest.approx(plain["area_mm2"], rel=area_rel)
+    assert any(w.startswith(note) for w in body["warnings"])
     assert api.get(f"/v1/meshes/{body['id']}").json() == body
     for bad in ("0", "-1", "nan", "big"):
-        r = api.post("/v1/meshes", files={"file": ("p.stl", stl)}, data={"max_face_area_mm2": bad})
-        problem = assert_problem(r, 422)
-        assert "max_face_area_mm2" in json.dumps(problem["errors"])
+        r = api.post("/v1/meshes", files={"file": ("p.stl", stl)}, data={field: bad})
+        assert field in json.dumps(assert_problem(r, 422)["errors"])
 
 
 def test_unknown_mesh_is_404_problem(api) -> None:

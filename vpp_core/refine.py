@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from vpp_core.errors import LimitError, MeshError
-from vpp_core.mesh import DEFAULT_MAX_FACES, Part, load_mesh, part_from_children
+from vpp_core.mesh import DEFAULT_MAX_FACES, Part, part_from_children
 
 
 def generations(areas: np.ndarray, max_area_mm2: float) -> np.ndarray:
@@ -51,21 +51,6 @@ def refine(part: Part, max_area_mm2: float, *, max_faces: int = DEFAULT_MAX_FACE
     vertices, faces, parent = bisect(part.vertices, part.faces, k)
     note = f"faces larger than {max_area_mm2:g} mm² split: {part.n_faces} faces -> {len(faces)}"
     return part_from_children(part, vertices, faces, parent, note)
-
-
-def load_refined(
-    data: bytes,
-    file_type: str,
-    units: str,
-    max_face_area_mm2: float | None,
-    *,
-    max_faces: int = DEFAULT_MAX_FACES,
-) -> Part:
-    """`load_mesh`, then `refine` to `max_face_area_mm2` (mm²) when that is given."""
-    part = load_mesh(data, file_type, units, max_faces=max_faces)
-    if max_face_area_mm2 is None:
-        return part
-    return refine(part, max_face_area_mm2, max_faces=max_faces)
 
 
 def bisect(

@@ -39,11 +39,21 @@ def upload_mesh(
             "for CAD exports with big facets (docs/cad-meshes.md); 1 for the paper camera",
         ),
     ] = None,
+    remesh_mm: Annotated[
+        float | None,
+        Form(
+            gt=0,
+            allow_inf_nan=False,
+            description="remesh isotropically with edges of about this many mm (sharp "
+            "features kept) before storing: the view count then belongs to the surface, not "
+            "to how it was exported (docs/cad-meshes.md); 1 for the paper camera",
+        ),
+    ] = None,
 ) -> MeshSummary:
     """Upload a mesh; the same geometry again gives the same id and stores nothing new."""
     data = planning.read_upload(file.file, settings.max_upload_bytes)
     summary = planning.upload_mesh(
-        store, settings, data, file.filename, format, units, max_face_area_mm2
+        store, settings, data, file.filename, format, units, max_face_area_mm2, remesh_mm
     )
     response.headers["Location"] = f"/v1/meshes/{summary.id}"
     response.headers["ETag"] = f'"{summary.id}"'

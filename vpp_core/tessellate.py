@@ -1,0 +1,27 @@
+"""The planning mesh of a file: loaded (vpp_core.mesh), remeshed isotropically if asked
+(vpp_core.remesh), split into area elements if asked (vpp_core.refine), within the face limit."""
+
+from __future__ import annotations
+
+from vpp_core.mesh import DEFAULT_MAX_FACES, Part, load_mesh
+from vpp_core.refine import refine
+from vpp_core.remesh import remesh
+
+
+def load_part(
+    data: bytes,
+    file_type: str,
+    units: str,
+    *,
+    remesh_mm: float | None = None,
+    max_face_area_mm2: float | None = None,
+    max_faces: int = DEFAULT_MAX_FACES,
+) -> Part:
+    """`load_mesh`, then `remesh` to `remesh_mm` (mm edges), then `refine` to
+    `max_face_area_mm2` (mm²), each when given."""
+    part = load_mesh(data, file_type, units, max_faces=max_faces)
+    if remesh_mm is not None:
+        part = remesh(part, remesh_mm, max_faces=max_faces)
+    if max_face_area_mm2 is not None:
+        part = refine(part, max_face_area_mm2, max_faces=max_faces)
+    return part

@@ -25,6 +25,7 @@ from vpp_core.document import (
 )
 from vpp_core.errors import VppError
 from vpp_core.mesh import UNITS_TO_MM, Part
+from vpp_core.meshio import ply_bytes
 from vpp_core.plan import plan
 from vpp_core.pointcloud import CloudStats, simulate_plan, write_ply
 from vpp_core.rays import DEFAULT_BACKEND
@@ -78,6 +79,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="simulate the selected views' point cloud: PLY with neighbours within r̄ per point",
     )
     p.add_argument("--plots", type=Path, metavar="DIR", help="write PNG plots and data here")
+    p.add_argument(
+        "--mesh-out",
+        type=Path,
+        metavar="OUT.ply",
+        help="write the mesh the plan refers to (after --remesh / --max-face-area), exact PLY",
+    )
     p.set_defaults(run=run_plan)
     st = sub.add_parser("study", help="the paper's studies: resolution sweep, decimation")
     kinds = st.add_subparsers(dest="kind", required=True, parser_class=_Parser)
@@ -238,6 +245,9 @@ def run_plan(args: argparse.Namespace) -> int:
     if args.output:
         _write(args.output, text)
         print(f"plan written to {args.output}")
+    if args.mesh_out:
+        _write_bytes(args.mesh_out, ply_bytes(part.vertices, part.faces, f"vpp mesh {part.id}"))
+        print(f"mesh written to {args.mesh_out}")
     stats = _point_cloud(args, part, doc, settings.max_cloud_points, threads)
     if args.plots:
         from vpp_core.plots import plan_plots  # matplotlib: imported only when plots are asked

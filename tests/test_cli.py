@@ -11,6 +11,7 @@ import pytest
 import trimesh
 
 from tests.conftest import MESHES, plate, shared_dir
+from vpp_core.mesh import load_mesh
 
 TWO_VIEWS = [
     {"position": [0, 0, 500], "gaze": [0, 0, -1]},
@@ -87,11 +88,16 @@ def test_remesh_plans_on_an_isotropic_remesh(plate_files, tmp_path):
     pytest.importorskip("pymeshlab")
     mesh, views = plate_files
     out = tmp_path / "plan.json"
-    run = vpp("plan", mesh, "--candidates-file", views, "--remesh", "2", "-o", out, "-q")
+    ply = tmp_path / "planned.ply"
+    run = vpp(
+        "plan", mesh, "--candidates-file", views, "--remesh", "2", "-o", out, "--mesh-out", ply
+    )
     assert run.returncode == 0, run.stderr
     doc = json.loads(out.read_text())
     assert any(w.startswith("remeshed at 2 mm edges: 2 faces ->") for w in doc["mesh"]["warnings"])
     assert doc["mesh"]["faces"] > 100 and doc["metrics"]["coverage"]["area"] == pytest.approx(1.0)
+    planned = load_mesh(ply.read_bytes(), "ply")  # the surface the plan refers to, exactly
+    assert planned.id == doc["mesh"]["id"] and planned.n_faces == doc["mesh"]["faces"]
 
 
 def test_plan_with_generated_candidates_writes_all_sections(tmp_path):

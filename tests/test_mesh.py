@@ -12,6 +12,7 @@ import trimesh
 from tests.conftest import MANIFEST_UNITS, manifest_rows
 from vpp_core.errors import LimitError, MeshError
 from vpp_core.mesh import FORMATS, UNITS_TO_MM, Part, load_mesh, mesh_id, part_from_arrays
+from vpp_core.meshio import ply_bytes
 
 MESHES = Path(__file__).resolve().parents[1].parent / "shared/meshes"
 BAD = MESHES / "bad"
@@ -382,3 +383,19 @@ def test_absurd_coordinates_rejected() -> None:
     v, f = box_arrays()
     with pytest.raises(MeshError, match="beyond"):
         part_from_arrays(v * 1e300, f, units="m")
+
+
+def test_ply_bytes_load_back_to_the_same_mesh():
+    """Exact PLY (`vpp plan --mesh-out`): doubles and the faces' order and winding survive, so
+    the id does; a float32 export (trimesh's PLY) would not keep it."""
+    rng = np.random.default_rng(3)
+    vertices = rng.normal(scale=100.0, size=(40, 3)) + np.pi
+    faces = rng.integers(0, 40, size=(60, 3))
+    faces = faces[(faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2])]
+    faces = faces[faces[:, 0] != faces[:, 2]]
+    part = part_from_arrays(vertices, faces)
+    again = load_mesh(ply_bytes(part.vertices, part.faces, "test"), "ply")
+    assert again.id == part.id
+    np.testing.assert_array_equal(again.faces, part.faces)
+    f32 = trimesh.Trimesh(part.vertices, part.faces, process=False).export(file_type="ply")
+    assert load_mesh(f32, "ply").id != part.id

@@ -11,6 +11,7 @@ import trimesh
 from service.app import create_app
 from service.openapi import text as openapi_text
 from tests.conftest import MESHES, ROOT, shared_dir
+from vpp_core.mesh import load_mesh
 from vpp_core.samples import flanged_bushing, sample_stl
 from worker.settings import Settings
 
@@ -72,6 +73,13 @@ def test_upload_can_remesh_or_split_faces(api, field, value, note, area_rel) -> 
     assert body["area_mm2"] == pytest.approx(plain["area_mm2"], rel=area_rel)
     assert any(w.startswith(note) for w in body["warnings"])
     assert api.get(f"/v1/meshes/{body['id']}").json() == body
+    ply = api.get(f"/v1/meshes/{body['id']}/mesh.ply")  # what is planned, exactly
+    assert ply.status_code == 200 and load_mesh(ply.content, "ply").id == body["id"]
+    again = api.get(
+        f"/v1/meshes/{body['id']}/mesh.ply", headers={"If-None-Match": ply.headers["ETag"]}
+    )
+    assert again.status_code == 304
+    assert_problem(api.get(f"/v1/meshes/{'0' * 64}/mesh.ply"), 404)
     for bad in ("0", "-1", "nan", "big"):
         r = api.post("/v1/meshes", files={"file": ("p.stl", stl)}, data={field: bad})
         assert field in json.dumps(assert_problem(r, 422)["errors"])
@@ -198,7 +206,7 @@ def test_committed_openapi_matches_the_app() -> None:
         for op in path.values()
     }
     assert ops == {
-        "upload_mesh", "get_mesh", "submit_plan", "get_job", "cancel_job", "get_plan",
+        "upload_mesh", "get_mesh", "get_mesh_ply", "submit_plan", "get_job", "cancel_job", "get_plan",
         "get_plan_plot", "submit_point_cloud", "get_point_cloud", "get_point_cloud_stats",
         "get_point_cloud_plot", "submit_study", "get_study", "get_study_csv",
         "list_study_plots", "get_study_plot", "get_plan_scene",

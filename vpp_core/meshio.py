@@ -236,3 +236,20 @@ def _one_line(exc: BaseException, limit: int = 200) -> str:
     """An exception message on one line, at most `limit` characters."""
     text = " ".join(str(exc).split())
     return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+_PLY_FACE = np.dtype([("n", "u1"), ("v", "<i4", (3,))])
+
+
+def ply_bytes(vertices: F64, faces: I64, comment: str = "") -> bytes:
+    """Binary little-endian PLY of (V, 3) float64 vertices and (M, 3) faces, exact: vertices
+    as doubles, faces in their order and winding (so it loads back to the same mesh id)."""
+    header = ["ply", "format binary_little_endian 1.0"]
+    header += [f"comment {comment}"] if comment else []
+    header += [f"element vertex {len(vertices)}"]
+    header += [f"property double {axis}" for axis in "xyz"]
+    header += [f"element face {len(faces)}", "property list uchar int vertex_indices"]
+    records = np.empty(len(faces), dtype=_PLY_FACE)
+    records["n"], records["v"] = 3, faces
+    body = np.ascontiguousarray(vertices, dtype="<f8").tobytes() + records.tobytes()
+    return ("\n".join([*header, "end_header"]) + "\n").encode() + body

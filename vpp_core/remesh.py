@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from vpp_core.errors import LimitError, MeshError, VppError
 from vpp_core.mesh import DEFAULT_MAX_FACES, Part, part_from_arrays
 
@@ -34,17 +36,24 @@ def remesh(part: Part, edge_mm: float, *, max_faces: int = DEFAULT_MAX_FACES) ->
             f"remeshing at {edge_mm:g} mm edges gives about {guess} faces, the limit is "
             f"{max_faces}; ask for longer edges"
         )
-    out = isotropic_remesh(part, edge_mm)
-    if out.n_faces > max_faces:
+    vertices, faces = _pymeshlab_remesh(part, edge_mm)
+    if len(faces) > max_faces:
         raise LimitError(
-            f"remeshing at {edge_mm:g} mm edges gave {out.n_faces} faces, the limit is {max_faces}"
+            f"remeshing at {edge_mm:g} mm edges gave {len(faces)} faces, the limit is {max_faces}"
         )
-    note = f"remeshed at {edge_mm:g} mm edges: {part.n_faces} faces -> {out.n_faces}"
-    return part_from_arrays(out.vertices, out.faces, warnings=(*part.warnings, note))
+    note = f"remeshed at {edge_mm:g} mm edges: {part.n_faces} faces -> {len(faces)}"
+    return part_from_arrays(vertices, faces, warnings=(*part.warnings, note))
 
 
-def isotropic_remesh(part: Part, edge_mm: float, iterations: int = 10) -> Part:
-    """`part` remeshed with edges of about `edge_mm` mm, sharp features kept (pymeshlab)."""
+def isotropic_remesh(part: Part, edge_mm: float) -> Part:
+    """`part` remeshed with edges of about `edge_mm` mm, sharp features kept, unchecked."""
+    return part_from_arrays(*_pymeshlab_remesh(part, edge_mm))
+
+
+def _pymeshlab_remesh(
+    part: Part, edge_mm: float, iterations: int = 10
+) -> tuple[np.ndarray, np.ndarray]:
+    """(V, 3) vertices mm and (M, 3) faces of pymeshlab's isotropic explicit remeshing."""
     try:
         import pymeshlab
     except ImportError:  # pragma: no cover - depends on the installed extras
@@ -58,4 +67,4 @@ def isotropic_remesh(part: Part, edge_mm: float, iterations: int = 10) -> Part:
     except pymeshlab.PyMeshLabException as exc:
         raise MeshError(f"isotropic remeshing failed: {exc}") from None
     out = ms.current_mesh()
-    return part_from_arrays(out.vertex_matrix(), out.face_matrix())
+    return out.vertex_matrix(), out.face_matrix()

@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+from functools import partial
 from typing import Annotated
 
-from fastapi import APIRouter, File, Form, Response, UploadFile
+from fastapi import APIRouter, File, Form, Header, Response, UploadFile
 
 from service import planning
 from service.deps import SettingsDep, StoreDep
 from service.models import MeshSummary, Problem
+from service.routers.plans import named_forever
 
 router = APIRouter(prefix="/v1/meshes", tags=["meshes"])
 ERRORS = {c: {"model": Problem, "content": {"application/problem+json": {}}} for c in (413, 422)}
@@ -66,3 +68,25 @@ def get_mesh(mesh_id: str, store: StoreDep, response: Response) -> MeshSummary:
     summary = planning.get_mesh(store, mesh_id)
     response.headers["ETag"] = f'"{summary.id}"'
     return summary
+
+
+PLY = "application/vnd.ply"
+"""No IANA type for PLY; this is the one in common use."""
+
+
+@router.get(
+    "/{mesh_id}/mesh.ply",
+    response_class=Response,
+    responses={
+        200: {"content": {PLY: {}}},
+        304: {"description": "Not modified"},
+        404: {"model": Problem},
+    },
+)
+def get_mesh_ply(
+    mesh_id: str, store: StoreDep, if_none_match: Annotated[str | None, Header()] = None
+) -> Response:
+    """The stored mesh, as planned (after `remesh_mm`, `max_face_area_mm2`): exact binary PLY."""
+    return named_forever(
+        (mesh_id, "mesh"), if_none_match, partial(planning.mesh_ply, store, mesh_id), PLY
+    )

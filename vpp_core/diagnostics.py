@@ -338,13 +338,14 @@ def _element_hint(under: Undersampled, coverable: float) -> str | None:
     """The hint when seen faces larger than an element hold area that no ray lands on."""
     if coverable <= 0 or under.unsampled_mm2 < UNSAMPLED_SHARE * coverable:
         return None
-    a = f"{under.element_mm2:g}"
+    a, edge = f"{under.element_mm2:g}", f"{math.sqrt(under.element_mm2):.2g}"
     return (
         f"faces larger than {a} mm² count as seen when one ray lands on them: "
         f"{under.unsampled_mm2:.3g} mm² of them ({under.unsampled_mm2 / coverable:.2%} of the "
         f"coverable area) gets no ray from this plan, and {under.faces} get rays on less than "
         f"half of their area; split them into area elements (--max-face-area {a}, or "
-        "max_face_area_mm2 at upload) so that seen means seen"
+        "max_face_area_mm2 at upload) so that seen means seen, or remesh the part "
+        f"(--remesh {edge}, or remesh_mm) for a count that does not depend on its export"
     )
 
 

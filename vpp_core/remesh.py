@@ -2,7 +2,7 @@
 
 Planning on a remesh makes the view count a property of the surface at a stated element size,
 not of how the part was exported: featuretype's CAD file and a 1 mm remesh of it, both
-remeshed at 1 mm, need 37 and 36 views at F = 0.999 (docs/cad-meshes.md).
+remeshed at 1 mm, need 21 and 20 views at F = 0.99 (docs/cad-meshes.md).
 """
 
 from __future__ import annotations

@@ -25,7 +25,6 @@ from vpp_core.document import (
 )
 from vpp_core.errors import VppError
 from vpp_core.mesh import UNITS_TO_MM, Part
-from vpp_core.meshio import ply_bytes
 from vpp_core.plan import plan
 from vpp_core.pointcloud import CloudStats, simulate_plan, write_ply
 from vpp_core.rays import DEFAULT_BACKEND
@@ -246,7 +245,7 @@ def run_plan(args: argparse.Namespace) -> int:
         _write(args.output, text)
         print(f"plan written to {args.output}")
     if args.mesh_out:
-        _write_bytes(args.mesh_out, ply_bytes(part.vertices, part.faces, f"vpp mesh {part.id}"))
+        _write_bytes(args.mesh_out, part.ply())
         print(f"mesh written to {args.mesh_out}")
     stats = _point_cloud(args, part, doc, settings.max_cloud_points, threads)
     if args.plots:

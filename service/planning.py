@@ -15,7 +15,6 @@ from rq import Queue
 from service.models import JobOut, MeshSummary, PlanSubmit, RelatedPlan, RelatedPlans, StudySubmit
 from vpp_core.document import PlanRequest
 from vpp_core.errors import NotFoundError, TooLargeError, VppError
-from vpp_core.meshio import ply_bytes
 from vpp_core.plan import check_request
 from vpp_core.scene import geometry_scene, plan_scene
 from vpp_core.studies import check_study
@@ -208,8 +207,7 @@ def mesh_geometry(store: Store, mesh_id: str) -> bytes:
 
 def mesh_ply(store: Store, mesh_id: str) -> bytes:
     """The stored mesh as exact binary PLY (doubles; it loads back to the same id)."""
-    part = art.get_part(store, content_id(mesh_id, "mesh"))
-    return ply_bytes(part.vertices, part.faces, f"vpp mesh {part.id}")
+    return art.get_part(store, content_id(mesh_id, "mesh")).ply()
 
 
 def scene_gz(store: Store, plan: str) -> bytes:

@@ -12,7 +12,6 @@ import trimesh
 from tests.conftest import MANIFEST_UNITS, manifest_rows
 from vpp_core.errors import LimitError, MeshError
 from vpp_core.mesh import FORMATS, UNITS_TO_MM, Part, load_mesh, mesh_id, part_from_arrays
-from vpp_core.meshio import ply_bytes
 
 MESHES = Path(__file__).resolve().parents[1].parent / "shared/meshes"
 BAD = MESHES / "bad"
@@ -394,7 +393,7 @@ def test_ply_bytes_load_back_to_the_same_mesh():
     faces = faces[(faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2])]
     faces = faces[faces[:, 0] != faces[:, 2]]
     part = part_from_arrays(vertices, faces)
-    again = load_mesh(ply_bytes(part.vertices, part.faces, "test"), "ply")
+    again = load_mesh(part.ply(), "ply")
     assert again.id == part.id
     np.testing.assert_array_equal(again.faces, part.faces)
     f32 = trimesh.Trimesh(part.vertices, part.faces, process=False).export(file_type="ply")

@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 from trimesh import Trimesh
 
 from vpp_core.errors import LimitError, MeshError
-from vpp_core.meshio import announced_size, parse_mesh_bytes
+from vpp_core.meshio import announced_size, parse_mesh_bytes, ply_bytes
 from vpp_core.orientation import orientation_signs
 
 UNITS_TO_MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0, "in": 25.4}
@@ -91,6 +91,10 @@ class Part:
     def bounds(self) -> F64:
         """(2, 3) float64 mm: [min corner, max corner]."""
         return np.array([self.vertices.min(axis=0), self.vertices.max(axis=0)])
+
+    def ply(self) -> bytes:
+        """Exact binary PLY of this mesh: loads back (`load_mesh`) to the same id."""
+        return ply_bytes(self.vertices, self.faces, f"vpp mesh {self.id}")
 
     def trimesh(self) -> Trimesh:
         """Cached process=False Trimesh: same vertices and face order, wound to match normals."""

@@ -131,8 +131,9 @@ that another thread of the parent held when it forked."""
 
 
 def die_with_parent() -> None:
-    """Linux: SIGTERM this child when its parent dies (a killed `vpp serve` leaves no workers).
-    Runs between fork and exec (`preexec_fn`), so it only calls the prctl found at import."""
+    """Linux: SIGTERM this process when its parent dies (a killed `vpp serve` leaves no
+    workers). Safe as a `preexec_fn` (between fork and exec): it only calls the prctl found at
+    import; workers call it after exec instead (`follow_parent`)."""
     if _PRCTL is not None:
         _PRCTL(PR_SET_PDEATHSIG, signal.SIGTERM)
 

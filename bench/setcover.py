@@ -1,12 +1,13 @@
 """Benchmark the set-cover solvers; one JSON line per instance and solver (stdout).
 
     python bench/setcover.py FILE... [--solver milp|greedy|highs|both] [--time-limit S]
-                             [--threads T]
+                             [--threads T] [--unicost]
     python bench/setcover.py --mesh [MESH...] [--candidates 500 2000]
                              [--formulation density visibility] [--save DIR] [...]
     python bench/setcover.py --synthetic ROWSxCOLS [--binary] [--seed K] [--lp] [...]
 
 FILE: OR-Library SCP files; `best_known` comes from `optima.csv` beside them (null when absent).
+--unicost: the same files with every cost set to 1 (named <file>_unicost, as in optima.csv).
 A FILE ending in .npz is an instance saved with --save (unit costs).
 --mesh: viewpoint instances built from real meshes (every mesh of ../shared/meshes without
 MESH; units from its MANIFEST.csv) with the paper's camera and the default target, one per
@@ -62,27 +63,30 @@ from vpp_core.setcover import CoverResult, solve_cover  # noqa: E402
 Instance = tuple[str, Any, np.ndarray | None, float | None, float]  # name, A, costs, known, s
 
 
-def best_known(path: Path) -> float | None:
-    """Best known objective of the instance in path from optima.csv beside it, else None."""
+def best_known(path: Path, name: str) -> float | None:
+    """Best known objective of the instance `name` from optima.csv beside path, else None."""
     table = path.parent / "optima.csv"
     if not table.is_file():
         return None
     with table.open(newline="") as fh:
         for row in csv.DictReader(fh):
-            if row["instance"] == path.stem:
+            if row["instance"] == name:
                 return float(row["best_known"])
     return None
 
 
-def file_instances(files: list[Path]) -> Iterator[Instance]:
-    """OR-Library files (or .npz instances saved with --save) as instances."""
+def file_instances(files: list[Path], unicost: bool = False) -> Iterator[Instance]:
+    """OR-Library files (or .npz instances saved with --save) as instances; with `unicost`
+    every cost is 1 and the instance is named <stem>_unicost, as in optima.csv."""
     for path in files:
         t0 = time.perf_counter()
         if path.suffix == ".npz":
             yield path.stem, sp.load_npz(path), None, None, time.perf_counter() - t0
             continue
         A, costs = parse_orlib(path.read_text())
-        yield path.stem, A, costs, best_known(path), time.perf_counter() - t0
+        name = f"{path.stem}_unicost" if unicost else path.stem
+        costs = np.ones_like(costs) if unicost else costs
+        yield name, A, costs, best_known(path, name), time.perf_counter() - t0
 
 
 def saved(instances: Iterator[Instance], folder: Path | None) -> Iterator[Instance]:
@@ -200,6 +204,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--formulation", nargs="+", default=["density", "visibility"])
     ap.add_argument("--synthetic", metavar="ROWSxCOLS", help="window instance, e.g. 200000x2000")
     ap.add_argument("--binary", action="store_true", help="synthetic with 0/1 coefficients")
+    ap.add_argument("--unicost", action="store_true", help="FILEs with every cost set to 1")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--lp", action="store_true", help="also solve the LP relaxation on its own")
     ap.add_argument("--time-limit", type=float, default=60.0, help="seconds per solve")
@@ -208,6 +213,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--threads", type=int, default=None, help="HiGHS threads (default: HiGHS)")
     args = ap.parse_args(argv)
     solvers = ["greedy", "milp"] if args.solver == "both" else [args.solver]
+    missing = [str(f) for f in args.files if not f.is_file()]
+    if missing:
+        print(f"no such file: {', '.join(missing)}", file=sys.stderr)
+        return 2
     if args.synthetic:
         instances = synthetic_instance(args.synthetic, args.binary, args.seed)
     elif args.mesh:
@@ -217,7 +226,7 @@ def main(argv: list[str] | None = None) -> int:
             return 0
         instances = mesh_instances(meshes, args.candidates, args.formulation)
     else:
-        instances = file_instances(args.files)
+        instances = file_instances(args.files, args.unicost)
     for inst in saved(instances, args.save):
         for solver in solvers:
             print(json.dumps(run(inst, solver, args)), flush=True)

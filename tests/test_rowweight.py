@@ -24,8 +24,9 @@ def test_it_finds_the_optimum_of_small_models(seed: int, real: bool) -> None:
     A, costs = random_instance(seed, real, m=40, n=16)
     start = greedy_cover(A, costs)
     optimum = all_covers(A, costs)[1].min()
-    found = rowweight.search(A, costs, start, time.perf_counter() + 20.0, target=optimum, seed=seed)
-    assert is_cover(A, found)
+    t0 = time.perf_counter()
+    found, at = rowweight.search(A, costs, start, t0 + 20.0, target=optimum, seed=seed)
+    assert is_cover(A, found) and at is not None and t0 < at <= time.perf_counter()
     assert costs[found].sum() == pytest.approx(optimum)
 
 
@@ -59,7 +60,10 @@ def test_it_stops_at_target_and_deadline() -> None:
     rowweight.search(A, costs, start, t0 + 0.5)
     assert time.perf_counter() - t0 < 1.5
     t0 = time.perf_counter()
-    same = rowweight.search(A, costs, start, t0 + 30.0, target=len(start))  # at target
+    same, _ = rowweight.search(A, costs, start, t0 + 30.0, target=len(start))  # at target
+    assert time.perf_counter() - t0 < 1.0 and np.array_equal(same, np.sort(start))
+    t0 = time.perf_counter()
+    same, _ = rowweight.search(A, costs, start, t0 + 30.0, stop=lambda: True)  # told to stop
     assert time.perf_counter() - t0 < 1.0 and np.array_equal(same, np.sort(start))
 
 
@@ -71,5 +75,5 @@ def test_it_reaches_known_optima_of_or_library(name: str, optimum: int) -> None:
     A, costs = parse_orlib(path.read_text())
     start = greedy_cover(A, costs)
     assert costs[start].sum() > optimum  # greedy alone does not get there
-    found = rowweight.search(A, costs, start, time.perf_counter() + 10.0, target=optimum)
+    found, _ = rowweight.search(A, costs, start, time.perf_counter() + 10.0, target=optimum)
     assert is_cover(A, found) and costs[found].sum() == optimum

@@ -149,16 +149,6 @@ def columns_worth_keeping(lp: LpBound, incumbent: float, step: float) -> np.ndar
     return np.asarray(lp.bound + np.maximum(lp.reduced, 0.0) <= target + slack)
 
 
-def core_columns(A: sp.csr_array, reduced: np.ndarray, per_row: int) -> np.ndarray:
-    """(N,) bool: the `per_row` columns of least reduced cost (N,) of every row of A (M, N)."""
-    rows = np.repeat(np.arange(A.shape[0]), np.diff(A.indptr))
-    order = np.lexsort((reduced[A.indices], rows))
-    rank = np.arange(order.size) - A.indptr[rows[order]]
-    core = np.zeros(A.shape[1], dtype=bool)
-    core[A.indices[order[rank < per_row]]] = True
-    return core
-
-
 RELAXATION_OPTIONS: dict[str, HighsOption] = {"solver": "simplex"}
 """The partial cover's LP goes to dual simplex: on 1 mm² element models (featuretype, 17 008
 × 471 after merging, F = 0.999 / 0.99; plate_holes, 45 296 × 488) it took 5 / 17 s and 14 s

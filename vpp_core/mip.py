@@ -67,30 +67,86 @@ def solve_mip(
 ) -> MipAnswer:
     """HiGHS on the MIP `build()` (a picklable callable, run in the child), warm-started at
     column values `start` (N,) when given, within `time_limit` s (a hard wall, see above)."""
+    with submit(build, start, time_limit, mip_rel_gap, threads) as run:
+        return run.answer()
+
+
+@dataclass
+class Pending:
+    """A HiGHS run under way in this thread's child; `answer()` waits for it, up to its wall.
+
+    Used as a context manager: leaving it without the answer (an exception, or no call)
+    stops the child, so that its answer cannot reach the next call.
+    """
+
+    child: _Child | None  # None: the run could not be sent
+    wall: float  # time.monotonic() after which the child is killed
+    time_limit: float
+
+    def ready(self) -> bool:
+        """Whether the answer is in (or none can come)."""
+        try:
+            return self.child is None or self.child.conn.poll(0)
+        except (EOFError, OSError):
+            return True
+
+    def answer(self) -> MipAnswer:
+        """HiGHS's answer, or none (status kTimeLimit when it outlived its wall)."""
+        child, self.child = self.child, None
+        if child is None:
+            return _NONE
+        try:
+            came = child.conn.poll(max(self.wall - time.monotonic(), 0.0))
+            if came:
+                reply: MipAnswer | Exception
+                reply, rss_kib = child.conn.recv()
+        except (EOFError, OSError) as exc:  # the child died: killed for memory, or crashed
+            log.warning("the HiGHS process ended without an answer (%s)", exc)
+            _retire(child)
+            return _NONE
+        except BaseException:  # interrupted here: its answer must not reach the next call
+            _retire(child)
+            raise
+        if not came:
+            log.warning("HiGHS ran past its %.1f s time limit and was stopped", self.time_limit)
+            _retire(child)
+            return MipAnswer(None, highspy.HighsModelStatus.kTimeLimit, -math.inf)
+        _peak_kib[0] = max(_peak_kib[0], rss_kib)
+        if isinstance(reply, Exception):  # raised in the child, which stays usable
+            raise reply
+        return reply
+
+    def __enter__(self) -> Pending:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self.child is not None:
+            _retire(self.child)
+            self.child = None
+
+
+def submit(
+    build: Callable[[], highspy.HighsLp],
+    start: np.ndarray | None,
+    time_limit: float,
+    mip_rel_gap: float,
+    threads: int | None,
+) -> Pending:
+    """Start HiGHS on the MIP `build()` in this thread's child (see `solve_mip`); the caller
+    may work meanwhile, on another core."""
     deadline = time.monotonic() + time_limit
     wall = deadline + max(time_limit, 0.0) * GRACE_SHARE + GRACE_S
     child = _child()
     try:
         child.conn.send((build, start, deadline, mip_rel_gap, threads))
-        if child.conn.poll(max(wall - time.monotonic(), 0.0)):
-            reply: MipAnswer | Exception
-            reply, rss_kib = child.conn.recv()
-            _peak_kib[0] = max(_peak_kib[0], rss_kib)
-            if not isinstance(reply, Exception):
-                return reply
-        else:
-            log.warning("HiGHS ran past its %.1f s time limit and was stopped", time_limit)
-            reply = MipAnswer(None, highspy.HighsModelStatus.kTimeLimit, -math.inf)
     except (EOFError, OSError) as exc:  # the child died: killed for memory, or crashed
         log.warning("the HiGHS process ended without an answer (%s)", exc)
-        reply = _NONE
-    except BaseException:  # interrupted here: its answer must not reach the next call
+        _retire(child)
+        return Pending(None, wall, time_limit)
+    except BaseException:
         _retire(child)
         raise
-    if isinstance(reply, Exception):  # raised in the child, which stays usable
-        raise reply
-    _retire(child)
-    return reply
+    return Pending(child, wall, time_limit)
 
 
 def solve_here(

@@ -20,6 +20,7 @@ from __future__ import annotations
 import os
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cache
 
@@ -217,31 +218,37 @@ def search(
     target: float = -np.inf,
     patience: int = 10**12,
     seed: int = 0,
-) -> np.ndarray:
-    """(K',) sorted cover of A (M, N) costing <= that of the cover `selected` (K,).
+    stop: Callable[[], bool] | None = None,
+) -> tuple[np.ndarray, float | None]:
+    """((K',) sorted cover of A (M, N) costing <= that of the cover `selected` (K,), the
+    time.perf_counter() by which the walk found it: None when the walk held no cover).
 
-    Runs until time.perf_counter() passes `deadline`, the cost reaches `target` or `patience`
-    steps in a row find no cheaper cover; stopped by either of the last two, the answer does
-    not depend on the machine's speed. With integer costs a better cover must be cheaper by
-    1, otherwise by any amount.
+    Runs until time.perf_counter() passes `deadline`, `stop()` says so (asked every CHUNK_S),
+    the cost reaches `target` or `patience` steps in a row find no cheaper cover; stopped by
+    either of the last two, the answer does not depend on the machine's speed. With integer
+    costs a better cover must be cheaper by 1, otherwise by any amount.
     """
     m, n = A.shape
     c = np.asarray(costs, dtype=np.float64)
+    start = np.sort(np.asarray(selected, dtype=np.int64))
     if m == 0 or n == 0:
-        return np.sort(np.asarray(selected, dtype=np.int64))
+        return start, None
     need = 1.0 - 1e-9 if integral_costs(c) else 1e-9 * max(1.0, float(c[selected].sum()))
     model = _model(A, c)
     S = _start(selected, model, seed)
-    steps = 64
-    while time.perf_counter() < deadline:
-        t = time.perf_counter()
-        if _walk(steps, need, float(target), patience, *model, *_fields(S)):
+    steps, found_at = 64, None
+    while time.perf_counter() < deadline and not (stop is not None and stop()):
+        t, best_step = time.perf_counter(), S.count[4]
+        done = _walk(steps, need, float(target), patience, *model, *_fields(S))
+        if S.count[4] != best_step:
+            found_at = time.perf_counter()
+        if done:
             break
         took = time.perf_counter() - t
         steps = int(np.clip(steps * CHUNK_S / max(took, 1e-6), 16, 10**6))
-    if not np.isfinite(S.money[1]):  # `selected` was not a cover: nothing better was found
-        return np.sort(np.asarray(selected, dtype=np.int64))
-    return np.flatnonzero(S.best).astype(np.int64)
+    if found_at is None:  # `selected` was not a cover and the walk found none
+        return start, None
+    return np.flatnonzero(S.best).astype(np.int64), found_at
 
 
 def compiled(timeout: float) -> bool:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import partial
 
@@ -34,7 +35,6 @@ from vpp_core.greedy import complete_cover, greedy_cover, prune_cover, remove_re
 from vpp_core.lpbound import (
     LpBound,
     columns_worth_keeping,
-    core_columns,
     highs_model,
     lp_bound,
 )
@@ -56,13 +56,10 @@ LP_SHARE = 0.4
 QUICK_SHARE = 0.1
 """At most this share of the time left after the LP goes to a first exact HiGHS run."""
 SEARCH_SHARE = 0.5
-"""At most this share of the time left then goes to the row-weighting search."""
+"""At most this share of the time left then goes to the row-weighting search alone; HiGHS
+then gets the rest, with the search beside it on another core."""
 SEARCH_PATIENCE = 100
 """The row-weighting search stops after this many steps per column without a cheaper cover."""
-CORE_SHARE = 0.25
-"""At most this share of the time left then goes to HiGHS on the core (least reduced costs)."""
-CORE_PER_ROW = 5
-"""Columns of least reduced cost per row that make up the core."""
 LOCAL_SEARCH_NNZ = 2_000_000
 """Reduced models with more nonzeros get the row-weighting search instead of HiGHS
 branch-and-bound."""
@@ -96,18 +93,19 @@ def _trivial_bound(A: sp.csr_array, costs: np.ndarray) -> float:
 # ---------------------------------------------------------------------------- HiGHS
 
 
-def _run_highs(
+def _start_highs(
     A: sp.csr_array,
     costs: np.ndarray,
     start: np.ndarray | None,
     time_limit: float,
     mip_rel_gap: float,
     threads: int | None,
-) -> mip.MipAnswer:
-    """Solve the cover of A (M, N) with HiGHS, warm-started from the cover `start` (K,) if any."""
+) -> mip.Pending:
+    """Start HiGHS on the cover of A (M, N) in its process, warm-started from the cover `start`
+    (K,) if any."""
     model = partial(highs_model, A, costs, integer=True)
     x0 = None if start is None else indicator(A.shape[1], start)
-    return mip.solve_mip(model, x0, time_limit, mip_rel_gap, threads)
+    return mip.submit(model, x0, time_limit, mip_rel_gap, threads)
 
 
 # ---------------------------------------------------------------------------- driver
@@ -158,31 +156,41 @@ class _Search:
     def closed(self) -> bool:
         return closes_gap(self.bound, self.objective, self.integral)[1]
 
-    def offer(self, cover: np.ndarray | None) -> None:
+    def offer(self, cover: np.ndarray | None, found_at: float | None = None) -> None:
+        """Keep `cover` (found at time.perf_counter() `found_at`, else now) if it is cheaper."""
         if cover is None or self.costs[cover].sum() >= self.objective:
             return
         if is_cover(self.A, cover):  # a cover from any step is checked before it counts
-            self.best, self.found_at = cover, time.perf_counter()
+            self.best, self.found_at = cover, found_at or time.perf_counter()
 
-    def walk(self, deadline: float, patience: int = 10**12) -> None:
-        """Row-weighting search from the best cover until `deadline`, the bound or `patience`
-        steps without a cheaper cover."""
+    def walk(
+        self, deadline: float, patience: int = 10**12, stop: Callable[[], bool] | None = None
+    ) -> None:
+        """Row-weighting search from the best cover until `deadline`, `stop()`, the bound or
+        `patience` steps without a cheaper cover."""
         if not rowweight.compiled(deadline - time.perf_counter()):
             return
         target = closes_gap(self.bound, self.objective, self.integral)[0]
-        found = rowweight.search(
-            self.A, self.costs, self.best, deadline, target=target, patience=patience
+        found, at = rowweight.search(
+            self.A, self.costs, self.best, deadline, target=target, patience=patience, stop=stop
         )
-        self.offer(found)
+        self.offer(found, at)
 
     def mip(
-        self, keep: np.ndarray, time_limit: float, gap: float, warm: bool = True
+        self, keep: np.ndarray, time_limit: float, gap: float, warm: bool, alongside: bool
     ) -> mip.MipAnswer:
         """HiGHS on the columns `keep` (n,) bool (which must hold the incumbent), started from
-        the incumbent when `warm`."""
+        the incumbent when `warm`; with `alongside`, the search runs here meanwhile, and HiGHS
+        is stopped if the search closes the gap."""
         cols = np.flatnonzero(keep)
         start = np.flatnonzero(np.isin(cols, self.best)) if warm else None
-        out = _run_highs(self.A[:, cols], self.costs[cols], start, time_limit, gap, self.threads)
+        A, costs = self.A[:, cols], self.costs[cols]
+        with _start_highs(A, costs, start, time_limit, gap, self.threads) as run:
+            if alongside:
+                self.walk(time.perf_counter() + time_limit, stop=run.ready)
+                if self.closed():  # the search met the bound: HiGHS is stopped unheard
+                    return mip.MipAnswer(None, highspy.HighsModelStatus.kNotset, -math.inf)
+            out = run.answer()
         selected = None if out.x is None else cols[np.flatnonzero(out.x > 0.5)]
         cover, repaired = _verified(self.A, self.costs, selected)
         self.offer(cover)
@@ -191,8 +199,8 @@ class _Search:
 
 
 def _search(S: _Search, mip_rel_gap: float) -> None:
-    """LP bound, a quick exact try, the row-weighting search, HiGHS on a core, then HiGHS on
-    what can win (at once, when the quick try left the gap at one unit)."""
+    """LP bound, a quick exact try, the row-weighting search, then HiGHS on what can win with
+    the search beside it (at once, when the quick try left the gap at one unit)."""
     lp = lp_bound(S.A, S.costs, S.left(LP_SHARE), S.threads)
     S.bound = max(S.bound, lp.bound)
     if S.closed():
@@ -203,30 +211,31 @@ def _search(S: _Search, mip_rel_gap: float) -> None:
     _exact(S, lp, S.left(QUICK_SHARE), mip_rel_gap)
     if S.closed() or S.mip_status == highspy.HighsModelStatus.kOptimal:
         return
-    if S.integral and closes_gap(S.bound + 1.0, S.objective, True)[1]:
-        # One unit short: only the proof, or a cover one unit cheaper, is missing. HiGHS
-        # looks for both; restarting its tree after the search would throw its work away.
-        # Cold: started from a near-optimal cover HiGHS proved more slowly (docs/setcover.md).
-        _exact(S, lp, S.left(), mip_rel_gap, warm=False)
-        return
-    S.walk(time.perf_counter() + S.left(SEARCH_SHARE), SEARCH_PATIENCE * S.A.shape[1])
-    if S.closed():
-        return
-    core = core_columns(S.A, lp.reduced, CORE_PER_ROW)
-    core[S.best] = True
-    if core.sum() < S.A.shape[1] and S.left() > 0:
-        S.mip(core, S.left(CORE_SHARE), mip_rel_gap)
-    if not S.closed() and S.left() > 0:
-        _exact(S, lp, S.left(), mip_rel_gap)
+    # One unit short: only the proof, or a cover one unit cheaper, is missing. HiGHS looks for
+    # both at once, cold: started from a near-optimal cover it proved more slowly
+    # (docs/setcover.md). Otherwise the search first gives HiGHS a better cover to start from.
+    # HiGHS then has the rest of the time, the search beside it unless one thread is all the
+    # solve may use.
+    one_unit = S.integral and closes_gap(S.bound + 1.0, S.objective, True)[1]
+    if not one_unit:
+        S.walk(time.perf_counter() + S.left(SEARCH_SHARE), SEARCH_PATIENCE * S.A.shape[1])
+        if S.closed():
+            return
+    _exact(S, lp, S.left(), mip_rel_gap, warm=not one_unit, alongside=S.threads != 1)
 
 
 def _exact(
-    S: _Search, lp: LpBound, time_limit: float, mip_rel_gap: float, warm: bool = True
+    S: _Search,
+    lp: LpBound,
+    time_limit: float,
+    mip_rel_gap: float,
+    warm: bool = True,
+    alongside: bool = False,
 ) -> None:
     """HiGHS on the columns that can still beat the incumbent; its bound then holds for A."""
     keep = columns_worth_keeping(lp, S.objective, 1.0 if S.integral else 0.0)
     keep[S.best] = True
-    out = S.mip(keep, time_limit, mip_rel_gap, warm)
+    out = S.mip(keep, time_limit, mip_rel_gap, warm, alongside)
     S.mip_status = out.status
     if not S.repaired:  # the kept columns hold every cheaper cover
         S.bound = max(S.bound, min(out.dual_bound, S.objective))

@@ -55,7 +55,8 @@ class MipAnswer:
     dual_bound: float  # -inf when HiGHS gave none
 
 
-_NONE = MipAnswer(None, highspy.HighsModelStatus.kNotset, -math.inf)
+NO_ANSWER = MipAnswer(None, highspy.HighsModelStatus.kNotset, -math.inf)
+"""No solution, no status, no bound: HiGHS gave nothing, or was stopped unheard."""
 
 
 def solve_mip(
@@ -94,7 +95,7 @@ class Pending:
         """HiGHS's answer, or none (status kTimeLimit when it outlived its wall)."""
         child, self.child = self.child, None
         if child is None:
-            return _NONE
+            return NO_ANSWER
         try:
             came = child.conn.poll(max(self.wall - time.monotonic(), 0.0))
             if came:
@@ -103,7 +104,7 @@ class Pending:
         except (EOFError, OSError) as exc:  # the child died: killed for memory, or crashed
             log.warning("the HiGHS process ended without an answer (%s)", exc)
             _retire(child)
-            return _NONE
+            return NO_ANSWER
         except BaseException:  # interrupted here: its answer must not reach the next call
             _retire(child)
             raise
@@ -175,7 +176,7 @@ def solve_here(
         h = _mip_highs(model, deadline - time.perf_counter(), mip_rel_gap, threads)
     run_highs(h, threads)
     answer = _answer(h)
-    return _NONE if _contradicts(answer, h, model) else answer
+    return NO_ANSWER if _contradicts(answer, h, model) else answer
 
 
 def _answer(h: highspy.Highs) -> MipAnswer:

@@ -189,7 +189,7 @@ class _Search:
             if alongside:
                 self.walk(time.perf_counter() + time_limit, stop=run.ready)
                 if self.closed():  # the search met the bound: HiGHS is stopped unheard
-                    return mip.MipAnswer(None, highspy.HighsModelStatus.kNotset, -math.inf)
+                    return mip.NO_ANSWER
             out = run.answer()
         selected = None if out.x is None else cols[np.flatnonzero(out.x > 0.5)]
         cover, repaired = _verified(self.A, self.costs, selected)

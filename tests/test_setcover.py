@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import itertools
 import math
+import time
 from pathlib import Path
 
 import highspy
@@ -502,6 +503,21 @@ def test_gap_of_one_unit_after_the_quick_run_goes_to_one_cold_highs_run(
     assert len(runs) == 2 and runs[1][1] > 5 * runs[0][1] > 0 and runs[0][0] is not None
     assert walks == ([] if one_unit else [False]) + ([True] if threads is None else [])
     assert (runs[1][0] is None) == one_unit  # the long run starts cold after a one-unit gap
+
+
+def test_no_highs_run_starts_once_the_lp_has_spent_the_time(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # On a loaded machine the in-process LP can overrun its share; each HiGHS run started after
+    # that could add its grace (mip.GRACE_S) past the limit. None starts: the greedy cover stays.
+    fake_highs(monkeypatch, [0, 1], "kOptimal", 2.0)
+    runs: list[object] = []
+    monkeypatch.setattr(
+        setcover, "_start_highs", lambda *a, **k: runs.append(a) or Answered(mip.NO_ANSWER)
+    )
+    monkeypatch.setattr(setcover, "lp_bound", lambda *a: time.sleep(0.3) or weak_lp(*a))
+    res = solve_cover(TINY, TINY_COSTS, time_limit=0.2)
+    assert runs == [] and (res.status, res.objective) == ("time_limit", 2.0)
 
 
 # ---------------------------------------------------------------------------- OR-Library parser

@@ -232,7 +232,10 @@ def _exact(
     warm: bool = True,
     alongside: bool = False,
 ) -> None:
-    """HiGHS on the columns that can still beat the incumbent; its bound then holds for A."""
+    """HiGHS on the columns that can still beat the incumbent; its bound then holds for A.
+    Nothing runs once the time is up: a run started late may outlive its wall (mip.GRACE_S)."""
+    if time_limit <= 0.0:
+        return
     keep = columns_worth_keeping(lp, S.objective, 1.0 if S.integral else 0.0)
     keep[S.best] = True
     out = S.mip(keep, time_limit, mip_rel_gap, warm, alongside)

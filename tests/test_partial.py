@@ -13,7 +13,14 @@ import scipy.sparse as sp
 from tests.test_setcover import random_cover_model
 from vpp_core.errors import SolverError
 from vpp_core.lpbound import Relaxation, relaxation_bound, row_lagrangian
-from vpp_core.partial import _merged, _model, greedy_partial, satisfied_rows, solve_partial
+from vpp_core.partial import (
+    LP_HEAD_START_S,
+    _merged,
+    _model,
+    greedy_partial,
+    satisfied_rows,
+    solve_partial,
+)
 from vpp_core.reduce import row_groups
 from vpp_core.setcover import solve_cover
 
@@ -192,6 +199,19 @@ def test_bound_is_the_lp_bound_when_the_mip_is_killed(monkeypatch):
     lp = relaxation_bound(partial_lp(A, w, 0.99), 30.0)
     assert out.result.status == "time_limit" and out.result.objective > np.ceil(lp - 1e-6)
     assert out.result.bound == np.ceil(lp - 1e-6) > 0
+
+
+def test_no_mip_starts_once_the_time_is_spent(monkeypatch):
+    # merging and greedy took the whole limit (a big model on a loaded machine): neither the
+    # LP's head start nor a MIP, which could outlive the deadline by its grace, is waited for
+    slow_greedy = lambda *a: time.sleep(0.4) or greedy_partial(*a)  # noqa: E731
+    monkeypatch.setattr("vpp_core.partial.greedy_partial", slow_greedy)
+    monkeypatch.setattr("vpp_core.partial.solve_mip", lambda *a, **k: pytest.fail("MIP ran"))
+    rng = np.random.default_rng(1)
+    out = solve_partial(
+        random_model(rng, 1000, 100, binary=True), rng.random(1000), 0.99, time_limit=0.3
+    )
+    assert out.result.status == "time_limit" and out.result.time_s < 0.4 + LP_HEAD_START_S
 
 
 def test_relaxation_runs_beside_the_caller_and_stops_when_cancelled():

@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import itertools
+import subprocess
+import sys
+import textwrap
 import time
 
 import highspy
@@ -10,6 +13,7 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
+from tests.conftest import ROOT
 from tests.test_setcover import random_cover_model
 from vpp_core.errors import SolverError
 from vpp_core.lpbound import Relaxation, relaxation_bound, row_lagrangian
@@ -212,6 +216,23 @@ def test_no_mip_starts_once_the_time_is_spent(monkeypatch):
         random_model(rng, 1000, 100, binary=True), rng.random(1000), 0.99, time_limit=0.3
     )
     assert out.result.status == "time_limit" and out.result.time_s < 0.4 + LP_HEAD_START_S
+
+
+def test_a_process_ends_cleanly_after_a_cancelled_relaxation():
+    # cancelled before its first iteration, HiGHS's thread ran on, and the process aborted
+    # at exit ("terminate called without an active exception", exit status 134)
+    code = textwrap.dedent(
+        """
+        import numpy as np
+        from tests.test_partial import partial_lp, random_model
+        from vpp_core.lpbound import Relaxation
+        rng = np.random.default_rng(1)
+        A = random_model(rng, 4000, 200, binary=True)
+        Relaxation(partial_lp(A, rng.random(4000), 0.99), 60.0).cancel()
+        """
+    )
+    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, timeout=60)
+    assert out.returncode == 0, out.stderr.decode()[-500:]
 
 
 def test_relaxation_runs_beside_the_caller_and_stops_when_cancelled():

@@ -196,8 +196,11 @@ class Relaxation:
         return -np.inf if self._thread.is_alive() else self._bound
 
     def cancel(self) -> None:
-        """Stop HiGHS (within milliseconds) if it is still running."""
+        """Stop HiGHS if it is still running, and wait for its thread: HiGHS stops at its next
+        iteration (within milliseconds once it iterates), and a HiGHS thread still running
+        when the process exits aborts it ("terminate called without an active exception")."""
         self._h.cancelSolve()  # type: ignore[no-untyped-call]
+        self._thread.join()
 
 
 def relaxation_bound(lp: highspy.HighsLp, time_limit: float, threads: int | None = None) -> float:

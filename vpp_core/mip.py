@@ -57,6 +57,8 @@ class MipAnswer:
 
 NO_ANSWER = MipAnswer(None, highspy.HighsModelStatus.kNotset, -math.inf)
 """No solution, no status, no bound: HiGHS gave nothing, or was stopped unheard."""
+TIMED_OUT = MipAnswer(None, highspy.HighsModelStatus.kTimeLimit, -math.inf)
+"""No solution, no bound, out of time: HiGHS was stopped at its wall, or never started."""
 
 
 def solve_mip(
@@ -111,7 +113,7 @@ class Pending:
         if not came:
             log.warning("HiGHS ran past its %.1f s time limit and was stopped", self.time_limit)
             _retire(child)
-            return MipAnswer(None, highspy.HighsModelStatus.kTimeLimit, -math.inf)
+            return TIMED_OUT
         _peak_kib[0] = max(_peak_kib[0], rss_kib)
         if isinstance(reply, Exception):  # raised in the child, which stays usable
             raise reply

@@ -47,14 +47,12 @@ from vpp_core.cover import (
 )
 from vpp_core.errors import SolverError
 from vpp_core.lpbound import Relaxation
-from vpp_core.mip import GRACE_S, MipAnswer, solve_mip, warm
+from vpp_core.mip import GRACE_S, TIMED_OUT, solve_mip, warm
 from vpp_core.reduce import row_groups, undominated_columns
 from vpp_core.setcover import CoverResult, closes_gap, solve_cover
 
 LP_HEAD_START_S = 0.5
 """The LP runs alone this long (at most) before the MIP starts beside it."""
-OUT_OF_TIME = MipAnswer(None, highspy.HighsModelStatus.kTimeLimit, -np.inf)
-"""The MIP's answer when no time is left to start it."""
 WEIGHT_RTOL = 1e-9
 """Satisfied weight may fall short of f·W by this fraction of W (float summation)."""
 
@@ -236,7 +234,7 @@ def _milp(
         x[start] = 1.0
         z = satisfied_rows(g.A, start, BUILD_TOL).astype(float)
         time_limit = deadline - time.perf_counter()
-        h = OUT_OF_TIME  # a MIP started now could outlive the deadline by its grace
+        h = TIMED_OUT  # a MIP started now could outlive the deadline by its grace
         if time_limit > 0.0:
             h = solve_mip(model, np.concatenate([x, z]), time_limit, mip_rel_gap, threads)
         best, found = start, None

@@ -126,16 +126,19 @@ def test_cancel_stops_a_running_job_and_a_resubmission_resumes(
 
 def test_a_failed_chunk_fails_the_plan_with_its_reason(api, start_workers, monkeypatch) -> None:
     monkeypatch.setenv("VPP_CHUNK_TIMEOUT_S", "1")
-    monkeypatch.setenv("VPP_CHUNK_VIEWS", "100")
+    monkeypatch.setenv("VPP_CHUNK_VIEWS", "200")
     mesh = upload_sample(api)
-    big = {"width_px": 3840, "height_px": 2400}  # 100 views of 9 Mpx, one Embree ray per pixel
-    body = {"mesh_id": mesh, "sensor": big, "backend": "embree"}  # on the part: about 4 s
-    job = submit(api, body | {"candidates": {"count": 200, "seed": 2}})
+    big = {"width_px": 3840, "height_px": 2400}  # 200 views of 9 Mpx, one Embree ray per pixel
+    body = {"mesh_id": mesh, "sensor": big, "backend": "embree"}  # on the part: about 7 s
+    job = submit(api, body | {"candidates": {"count": 400, "seed": 2}})
     start_workers(2)
     done = wait(api, job)
     assert done["status"] == "failed", done
     assert "chunk" in done["error"]["detail"] and "timeout" in done["error"]["detail"].lower()
     assert api.get(f"/v1/plans/{job}").status_code == 404
+    # the plan job stopped tracing its own chunk when it saw the other one fail
+    statuses = sorted(c["status"] for c in done["chunks"])
+    assert statuses == ["failed", "running"], done["chunks"]
 
 
 def test_a_job_that_ends_while_its_state_is_read_is_succeeded(api, monkeypatch) -> None:

@@ -43,3 +43,21 @@ def test_an_error_in_the_caller_leaves_the_pool_usable():
     for j in range(12):
         alone = trace_counts(part, PAPER, views.take(np.array([j])), threads=1).counts
         assert (again[:, [j]] != alone).nnz == 0
+
+
+def test_tick_comes_before_the_first_view_is_done_and_can_stop_the_trace():
+    # the plan job's look at the other chunks: it must not wait for a whole view
+    part, views = plate_part(side=20.0, n=8), _views(4)
+    seen: list[int] = []
+
+    def tick() -> None:
+        raise KeyboardInterrupt("a chunk failed elsewhere")
+
+    with pytest.raises(KeyboardInterrupt):
+        trace_counts(part, PAPER, views, threads=2, progress=seen.append, tick=tick)
+    assert seen == []  # stopped at the first block, before any view was finished
+    ticks: list[None] = []
+    trace_counts(
+        part, PAPER, views, threads=2, progress=seen.append, tick=lambda: ticks.append(None)
+    )
+    assert sum(seen) == 4 and len(ticks) >= 4

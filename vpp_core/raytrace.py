@@ -94,8 +94,10 @@ def trace_counts(
     threads: int | None = None,
     progress: Progress | None = None,
     cull: bool = True,
+    tick: Callable[[], None] | None = None,
 ) -> Trace:
-    """R for every view; with `cull`, only pixels inside the image of the part's hull are traced."""
+    """R for every view; with `cull`, only pixels inside the image of the part's hull are traced.
+    `tick()` is called as each block of rays is done; an exception it raises stops the trace."""
     start = time.perf_counter()
     backend = backend or make_backend(part)
     rotations = views.rotations()
@@ -118,6 +120,8 @@ def trace_counts(
     workers = threads or _cpu_count()
     with closing(_bounded_map(_pool(workers), work, tasks, 2 * workers)) as results:
         for chunk, hits in zip(tasks, results, strict=True):
+            if tick:
+                tick()
             pending.setdefault(chunk.view, []).append(hits)
             left[chunk.view] -= 1
             if left[chunk.view] == 0:  # reduce at once: memory grows with nnz(R), not rays

@@ -46,6 +46,8 @@ META_INTERVAL_S = 0.5
 """Least seconds between two progress writes of one job (Redis round trips)."""
 POLL_S = 0.25
 """Seconds between two looks at the chunks other workers run."""
+WATCH_S = 1.0
+"""While the plan job traces a chunk itself: seconds between two looks at the others."""
 FAILED = {JobStatus.FAILED, JobStatus.STOPPED, JobStatus.CANCELED}
 ADOPT = {JobStatus.QUEUED, JobStatus.STARTED, JobStatus.FINISHED}
 """Chunk job states a retried plan job adopts instead of enqueueing the chunk again."""
@@ -193,7 +195,9 @@ def _fan_out(
             time.sleep(POLL_S)
             continue
         lo, hi = chunk_range(index, size, len(views))
-        own[index] = _trace_range(ctx, part, sensor, views, lo, hi, backend, chunks.own_progress)
+        own[index] = _trace_range(
+            ctx, part, sensor, views, lo, hi, backend, chunks.own_progress, chunks.watch_due
+        )
         ctx.store.put(art.chunk_key(trace_id, size, index), art.trace_bytes(own[index]))
         chunks.taken_done(index)
     parts = [
@@ -216,12 +220,15 @@ def _trace_range(
     lo: int,
     hi: int,
     backend: RayBackend | None,
-    progress: Any,
+    progress: Callable[[int], None],
+    tick: Callable[[], None] | None = None,
 ) -> Trace:
-    """R of views [lo, hi)."""
+    """R of views [lo, hi), with trace_counts' `progress` and `tick`."""
     subset = views.take(np.arange(lo, hi))
     threads = ctx.settings.threads
-    return trace_counts(part, sensor, subset, backend=backend, threads=threads, progress=progress)
+    return trace_counts(
+        part, sensor, subset, backend=backend, threads=threads, progress=progress, tick=tick
+    )
 
 
 def chunk_job(
@@ -278,7 +285,7 @@ class _Chunks:
         for i in range(self.n):
             lo, hi = chunk_range(i, size, n_views)
             self.records.append({"index": i, "views": hi - lo, "status": "queued"})
-        self.last_cleanup = time.monotonic()
+        self.last_cleanup = self.last_watch = time.monotonic()
         self._enqueue()
 
     def _adoptable(self) -> dict[int, str]:
@@ -341,8 +348,15 @@ class _Chunks:
         delete_job(Job(self.records[index]["job"], connection=self.ctx.job.connection), False)
         self.watch()
 
+    def watch_due(self) -> None:
+        """`watch()` if WATCH_S have passed since the last look: a chunk that failed elsewhere
+        stops the chunk traced here, not only the wait after it."""
+        if time.monotonic() - self.last_watch >= WATCH_S:
+            self.watch()
+
     def watch(self) -> None:
         """Refresh the chunks other workers run; raise VppError when one failed."""
+        self.last_watch = time.monotonic()
         others = [r for r in self.records if r.get("job") and not r.get("taken_back")]
         others = [r for r in others if r["status"] not in ("succeeded",)]
         jobs = Job.fetch_many([r["job"] for r in others], connection=self.ctx.job.connection)
@@ -356,6 +370,7 @@ class _Chunks:
             raise VppError(f"ray-tracing chunk {rec['index']} vanished from the queue")
         status = job.get_status(refresh=False)
         if status in FAILED:
+            rec["status"] = "failed"
             raise VppError(f"ray-tracing chunk {rec['index']} failed: {failure_reason(job)}")
         rec["worker"] = job.worker_name or rec.get("worker")
         rec["done"] = int(job.meta.get("done", 0))

@@ -33,6 +33,10 @@ from vpp_core.sensor import Sensor
 
 Progress = Callable[[int], None]
 """Called with the number of viewpoints just finished."""
+ORDER_VIEWS_PER_THREAD = 8
+"""Tracing tasks go out largest first (the last ones keep every thread busy) within groups of
+this many consecutive views per thread, group after group: views are done, reported and
+reduced as the trace goes, not all at its end (then every view's hits waited in memory)."""
 
 
 BACKENDS: tuple[BackendName, ...] = get_args(BackendName)
@@ -103,8 +107,10 @@ def trace_counts(
     rotations = views.rotations()
     windows = view_windows(sensor, views, part_hull(part) if cull else None)
     duplicates = part.representative if has_duplicates(part) else None
+    workers = threads or _cpu_count()
     tasks = [c for j, w in enumerate(windows) for c in _chunks(j, *w, backend.block_rays)]
-    tasks.sort(key=lambda c: -c.size)
+    group = ORDER_VIEWS_PER_THREAD * workers  # largest first within each group of views
+    tasks.sort(key=lambda c: (c.view // group, -c.size))
     empty = (np.empty(0, np.int32), np.empty(0, np.int32))
     columns: list[tuple[np.ndarray, np.ndarray]] = [empty] * len(views)
     pending: dict[int, list[Hits]] = {}
@@ -117,7 +123,6 @@ def trace_counts(
         block = Block(sensor, views.positions[j], rotations[j], chunk.rows, chunk.cols)
         return backend.valid_hits(block)
 
-    workers = threads or _cpu_count()
     with closing(_bounded_map(_pool(workers), work, tasks, 2 * workers)) as results:
         for chunk, hits in zip(tasks, results, strict=True):
             if tick:

@@ -261,7 +261,7 @@ def _column(
         return nz.astype(np.int32), per_face[nz].astype(np.int32)
     per: list[np.ndarray] = [np.ones(len(f), np.int32) if c is None else c for f, c in hits]
     counts = per[0] if len(per) == 1 else np.concatenate(per)
-    if len(hits) > 1 or not (faces[1:] > faces[:-1]).all():  # merge: O(k log k), not O(M)
+    if len(faces) and (len(hits) > 1 or not (faces[1:] > faces[:-1]).all()):  # merge: O(k log k)
         order = np.argsort(faces, kind="stable")  # runs of sorted blocks: a cheap merge
         faces, counts = faces[order], counts[order]
         starts = np.flatnonzero(np.r_[True, faces[1:] != faces[:-1]])

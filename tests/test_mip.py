@@ -185,3 +185,24 @@ def test_time_limit_holds_while_the_search_compiles(tmp_path: Path) -> None:
         [sys.executable, "-c", code], cwd=ROOT, env=env, capture_output=True, text=True, check=True
     )
     assert float(out.stdout.split()[-1]) < wall(1.5)
+
+
+def test_the_highs_banner_is_shown_once_per_process(tmp_path: Path) -> None:
+    # the parent's first HiGHS shows it on stderr; each child (one per solving thread, a new
+    # one after a kill) showed it again: two or three times in one `vpp plan`
+    code = textwrap.dedent(
+        """
+        from tests.test_mip import random_model, solve
+        from vpp_core import lpbound, mip
+        lpbound.silent_highs({}, None)
+        A, costs = random_model(0)
+        solve(A, costs)
+        mip._retire(mip._child())  # as after a kill: the next run starts a new child
+        print(solve(A, costs).status)
+        """
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True
+    )
+    assert out.stdout.strip() == "HighsModelStatus.kOptimal"
+    assert out.stderr.count("Running HiGHS") == 1, out.stderr

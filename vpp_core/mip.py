@@ -305,7 +305,13 @@ atexit.register(_stop_all)
 def _serve(fd: int) -> None:
     """The child's loop: (build, start, deadline, gap, threads) in; (MipAnswer or error, peak
     RSS in KiB) out."""
-    os.dup2(2, 1)  # C-level prints (HiGHS's banner) go to stderr: stdout is the caller's
+    # C-level prints go nowhere: stdout is the caller's. HiGHS's banner, which it prints on a
+    # process's first Highs(), is the caller's to show, once (lpbound.silent_highs), not again
+    # from each child: that first Highs() is made here
+    null = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(null, 1)
+    os.close(null)
+    highspy.Highs()  # type: ignore[no-untyped-call]
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
     parent = os.getppid()
     threading.Thread(target=_exit_with, args=(parent,), daemon=True).start()

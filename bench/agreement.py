@@ -26,13 +26,13 @@ sys.path.insert(0, str(ROOT))
 from tests.conftest import MANIFEST_UNITS, MESHES, manifest_rows  # noqa: E402
 from tests.test_packets import first_ids  # noqa: E402
 from tests.test_raster import PAPER, IdsOf, compare_views, raster_ids  # noqa: E402
-from vpp_core.candidates import GeneratorSettings, generate  # noqa: E402
-from vpp_core.mesh import Part, load_mesh  # noqa: E402
-from vpp_core.packets import PacketBackend  # noqa: E402
-from vpp_core.pose import Viewpoints  # noqa: E402
-from vpp_core.raster import RasterBackend  # noqa: E402
-from vpp_core.rays import Block  # noqa: E402
-from vpp_core.raytrace import make_backend, trace_counts  # noqa: E402
+from vpp_core.camera.pose import Viewpoints  # noqa: E402
+from vpp_core.candidates.generator import GeneratorSettings, generate  # noqa: E402
+from vpp_core.mesh.part import Part, load_mesh  # noqa: E402
+from vpp_core.trace.packets import PacketBackend  # noqa: E402
+from vpp_core.trace.raster import RasterBackend  # noqa: E402
+from vpp_core.trace.rays import Block  # noqa: E402
+from vpp_core.trace.raytrace import make_backend, trace_counts  # noqa: E402
 
 
 def ids_of(backend: str, embree: int | None, part: Part, views: Viewpoints) -> IdsOf:

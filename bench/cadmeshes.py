@@ -14,8 +14,8 @@ both tessellations, each plan's viewpoints are then traced on the other tessella
 candidates) they see: the plan's coverage, judged by an independent trace on other faces.
 The tables of docs/cad-meshes.md come from this. Needs pymeshlab (`pip install -e '.[remesh]'`;
 the test extra has it too). --remesh MM remeshes both tessellations again, at MM mm edges
-(vpp_core.remesh.remesh, what `vpp plan --remesh` does); --max-face-area MM2 splits both
-tessellations' faces into area elements of at most MM2 mm² (vpp_core.refine, what
+(vpp_core.mesh.remesh.remesh, what `vpp plan --remesh` does); --max-face-area MM2 splits both
+tessellations' faces into area elements of at most MM2 mm² (vpp_core.mesh.refine, what
 `vpp plan --max-face-area` does); --subdivide MM splits them until every edge is at most
 MM mm (trimesh.remesh.subdivide_to_size).
 """
@@ -32,14 +32,14 @@ import numpy as np
 import scipy.sparse as sp
 import trimesh
 
-from vpp_core.document import CandidateGenerator, PlanRequest, SolverSettings, Target
-from vpp_core.mesh import Part, load_mesh, part_from_arrays
-from vpp_core.plan import candidates_for, finish
-from vpp_core.pose import Viewpoints
-from vpp_core.raytrace import make_backend, trace_counts
-from vpp_core.refine import refine
-from vpp_core.remesh import isotropic_remesh, remesh
-from vpp_core.sensor import Sensor
+from vpp_core.camera.pose import Viewpoints
+from vpp_core.camera.sensor import Sensor
+from vpp_core.mesh.part import Part, load_mesh, part_from_arrays
+from vpp_core.mesh.refine import refine
+from vpp_core.mesh.remesh import isotropic_remesh, remesh
+from vpp_core.plan.document import CandidateGenerator, PlanRequest, SolverSettings, Target
+from vpp_core.plan.pipeline import candidates_for, finish
+from vpp_core.trace.raytrace import make_backend, trace_counts
 
 
 def rows(part: Part, label: str, args: argparse.Namespace) -> dict[tuple[str, float], Plan]:

@@ -1,10 +1,10 @@
-"""OR-Tools CP-SAT on OR-Library set-cover files, as a yardstick for `vpp_core.setcover`.
+"""OR-Tools CP-SAT on OR-Library set-cover files, as a yardstick for `vpp_core.cover.setcover`.
 
     pip install ortools
     python bench/cpsat.py ../shared/data/orlib-scp/scpnre2.txt ... [--time-limit 60] [--workers 2]
 
 Model: one Boolean per column, one `AddBoolOr` per row, minimise the cost; the greedy cover
-(`vpp_core.greedy.complete_cover`) as a hint. One JSON line per instance: objective, bound,
+(`vpp_core.cover.greedy.complete_cover`) as a hint. One JSON line per instance: objective, bound,
 status, time_s, time_to_best_s, the last improvements (time s, objective) and `best_known`
 from optima.csv. Not a project solver (issue 4: chosen by measurement, and it did not win).
 """
@@ -23,8 +23,8 @@ import scipy.sparse as sp
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from vpp_core.greedy import complete_cover  # noqa: E402
-from vpp_core.orlib import parse_orlib  # noqa: E402
+from vpp_core.cover.greedy import complete_cover  # noqa: E402
+from vpp_core.cover.orlib import parse_orlib  # noqa: E402
 
 
 def solve(path: Path, time_limit: float, workers: int) -> dict[str, object]:

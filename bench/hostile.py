@@ -23,7 +23,7 @@ from fastapi.testclient import TestClient  # noqa: TID251
 
 from service.app import create_app
 from vpp_core.errors import VppError
-from vpp_core.mesh import load_mesh
+from vpp_core.mesh.part import load_mesh
 from vpp_core.samples import sample_stl
 from worker.settings import Settings
 

@@ -16,11 +16,11 @@ from pathlib import Path
 
 import numpy as np
 
-from vpp_core.mesh import load_mesh
-from vpp_core.pointcloud import cloud_stats, hit_points, neighbour_counts
-from vpp_core.pose import make_viewpoints
-from vpp_core.raytrace import make_backend
-from vpp_core.sensor import Sensor
+from vpp_core.camera.pose import make_viewpoints
+from vpp_core.camera.sensor import Sensor
+from vpp_core.mesh.part import load_mesh
+from vpp_core.report.pointcloud import cloud_stats, hit_points, neighbour_counts
+from vpp_core.trace.raytrace import make_backend
 
 TRAY = Path("../shared/meshes/1002_tray_bottom.STL")
 

@@ -65,12 +65,13 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from vpp_core.embree import CHUNK_RAYS, EmbreeBackend, block_directions  # noqa: E402
-from vpp_core.mesh import Part, load_mesh, part_from_arrays  # noqa: E402
-from vpp_core.packets import library as packets_library  # noqa: E402
-from vpp_core.pose import Viewpoints, make_viewpoints  # noqa: E402
-from vpp_core.rays import Block  # noqa: E402
-from vpp_core.raytrace import (  # noqa: E402
+from vpp_core.camera.pose import Viewpoints, make_viewpoints  # noqa: E402
+from vpp_core.camera.sensor import Sensor  # noqa: E402
+from vpp_core.mesh.part import Part, load_mesh, part_from_arrays  # noqa: E402
+from vpp_core.trace.embree import CHUNK_RAYS, EmbreeBackend, block_directions  # noqa: E402
+from vpp_core.trace.packets import library as packets_library  # noqa: E402
+from vpp_core.trace.rays import Block  # noqa: E402
+from vpp_core.trace.raytrace import (  # noqa: E402
     BACKENDS,
     _chunks,
     _hull_points,
@@ -78,7 +79,6 @@ from vpp_core.raytrace import (  # noqa: E402
     trace_counts,
     view_windows,
 )
-from vpp_core.sensor import Sensor  # noqa: E402
 
 MESH_DIR = ROOT.parent / "shared" / "meshes"
 UNITS = {"mm": "mm", "mm?": "mm", "unknown": "mm", "m": "m", "inch": "in", "inch?": "in"}

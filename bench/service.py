@@ -6,7 +6,8 @@
 
 Per repetition, in this order:
 
-- `inprocess`: `load_mesh` + `vpp_core.plan.plan(part, request, threads=None)` in this process
+- `inprocess`: `load_mesh` + `vpp_core.plan.pipeline.plan(part, request, threads=None)` in this
+  process
   (all cores), the same mesh bytes and request as the API gets.
 - `api-<n>w` for each n in --workers: a fresh store (temporary directory), the API in a uvicorn
   subprocess on loopback, n `python -m worker` processes (`start_workers(url, n, threads=None)`:
@@ -78,9 +79,9 @@ from rq import Queue, Worker  # noqa: E402,TID251
 from rq.exceptions import NoSuchJobError  # noqa: E402,TID251
 from rq.job import Job  # noqa: E402,TID251
 
-from vpp_core.document import PlanDocument, PlanRequest  # noqa: E402
-from vpp_core.mesh import load_mesh  # noqa: E402
-from vpp_core.plan import finish, plan  # noqa: E402
+from vpp_core.mesh.part import load_mesh  # noqa: E402
+from vpp_core.plan.document import PlanDocument, PlanRequest  # noqa: E402
+from vpp_core.plan.pipeline import finish, plan  # noqa: E402
 from vpp_core.samples import sample_stl  # noqa: E402
 from worker import artifacts as art  # noqa: E402
 from worker.pool import start_workers, stop_workers  # noqa: E402

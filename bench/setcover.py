@@ -14,7 +14,7 @@ MESH; units from its MANIFEST.csv) with the paper's camera and the default targe
 candidate count and formulation; the trace is made once per mesh and count. --save DIR
 writes each instance's matrix to DIR/<mesh>_<count>_<formulation>.npz as it is built.
 --solver highs: the reference of HiGHS alone (`scipy.optimize.milp`, one uninterrupted run)
-on the model `vpp_core.reduce.reduce_cover` leaves, its fixed columns added to the objective
+on the model `vpp_core.cover.reduce.reduce_cover` leaves, its fixed columns added to the objective
 and the bound; `both` is greedy and milp.
 --synthetic: the viewpoint-like window instance of `vpp_core.samples.window_cover`; with
 --lp the LP relaxation is also solved on its own (HiGHS interior point), so that the
@@ -47,18 +47,18 @@ sys.path.insert(0, str(ROOT / "bench"))
 
 from plan import default_meshes, manifest_units  # noqa: E402
 
-from vpp_core.density import cover_model  # noqa: E402
-from vpp_core.document import CandidateGenerator, PlanRequest  # noqa: E402
-from vpp_core.lpbound import lp_bound  # noqa: E402
-from vpp_core.mesh import load_mesh  # noqa: E402
-from vpp_core.mip import child_peak_rss_mib  # noqa: E402
-from vpp_core.orlib import parse_orlib  # noqa: E402
-from vpp_core.plan import candidates_for  # noqa: E402
-from vpp_core.raytrace import make_backend, trace_counts  # noqa: E402
-from vpp_core.reduce import reduce_cover  # noqa: E402
+from vpp_core.camera.sensor import make_sensor  # noqa: E402
+from vpp_core.cover.density import cover_model  # noqa: E402
+from vpp_core.cover.lpbound import lp_bound  # noqa: E402
+from vpp_core.cover.mip import child_peak_rss_mib  # noqa: E402
+from vpp_core.cover.orlib import parse_orlib  # noqa: E402
+from vpp_core.cover.reduce import reduce_cover  # noqa: E402
+from vpp_core.cover.setcover import CoverResult, solve_cover  # noqa: E402
+from vpp_core.mesh.part import load_mesh  # noqa: E402
+from vpp_core.plan.document import CandidateGenerator, PlanRequest  # noqa: E402
+from vpp_core.plan.pipeline import candidates_for  # noqa: E402
 from vpp_core.samples import window_cover  # noqa: E402
-from vpp_core.sensor import make_sensor  # noqa: E402
-from vpp_core.setcover import CoverResult, solve_cover  # noqa: E402
+from vpp_core.trace.raytrace import make_backend, trace_counts  # noqa: E402
 
 Instance = tuple[str, Any, np.ndarray | None, float | None, float]  # name, A, costs, known, s
 

@@ -40,14 +40,14 @@ sys.path.insert(0, str(ROOT / "bench"))
 
 from cadmeshes import load_pair, pair_parser  # noqa: E402
 
-from vpp_core.candidates import _place, _thin, smoothed_normals  # noqa: E402
-from vpp_core.document import CandidateGenerator, PlanRequest  # noqa: E402
-from vpp_core.embree import EmbreeBackend  # noqa: E402
-from vpp_core.mesh import Part  # noqa: E402
-from vpp_core.partial import solve_partial  # noqa: E402
-from vpp_core.plan import candidates_for  # noqa: E402
-from vpp_core.pose import Viewpoints, make_viewpoints  # noqa: E402
-from vpp_core.sensor import Sensor  # noqa: E402
+from vpp_core.camera.pose import Viewpoints, make_viewpoints  # noqa: E402
+from vpp_core.camera.sensor import Sensor  # noqa: E402
+from vpp_core.candidates.generator import _place, _thin, smoothed_normals  # noqa: E402
+from vpp_core.cover.partial import solve_partial  # noqa: E402
+from vpp_core.mesh.part import Part  # noqa: E402
+from vpp_core.plan.document import CandidateGenerator, PlanRequest  # noqa: E402
+from vpp_core.plan.pipeline import candidates_for  # noqa: E402
+from vpp_core.trace.embree import EmbreeBackend  # noqa: E402
 
 Points = tuple[np.ndarray, np.ndarray, np.ndarray]  # (k, 3) mm, (k,) face ids, (k,) mm²
 

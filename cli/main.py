@@ -15,23 +15,21 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from vpp_core.diagnostics import Undersampled
-from vpp_core.document import (
+from vpp_core.camera.sensor import make_sensor
+from vpp_core.errors import VppError
+from vpp_core.mesh.part import UNITS_TO_MM, Part
+from vpp_core.mesh.tessellate import load_part
+from vpp_core.plan.diagnostics import Undersampled
+from vpp_core.plan.document import (
     CandidateGenerator,
     PlanDocument,
     PlanRequest,
     SolverSettings,
     Target,
 )
-from vpp_core.errors import VppError
-from vpp_core.mesh import UNITS_TO_MM, Part
-from vpp_core.plan import plan
-from vpp_core.pointcloud import CloudStats, simulate_plan, write_ply
-from vpp_core.rays import DEFAULT_BACKEND
-from vpp_core.raytrace import BACKENDS
-from vpp_core.samples import sample_stl
-from vpp_core.sensor import make_sensor
-from vpp_core.studies import (
+from vpp_core.plan.pipeline import plan
+from vpp_core.report.pointcloud import CloudStats, simulate_plan, write_ply
+from vpp_core.report.studies import (
     DEFAULT_RATIOS,
     DEFAULT_RESOLUTIONS,
     DecimationRow,
@@ -40,7 +38,9 @@ from vpp_core.studies import (
     resolution_sweep,
     study_csv,
 )
-from vpp_core.tessellate import load_part
+from vpp_core.samples import sample_stl
+from vpp_core.trace.rays import DEFAULT_BACKEND
+from vpp_core.trace.raytrace import BACKENDS
 from worker.settings import Settings, get_settings
 
 EXIT_INPUT = 2
@@ -249,7 +249,9 @@ def run_plan(args: argparse.Namespace) -> int:
         print(f"mesh written to {args.mesh_out}")
     stats = _point_cloud(args, part, doc, settings.max_cloud_points, threads)
     if args.plots:
-        from vpp_core.plots import plan_plots  # matplotlib: imported only when plots are asked
+        from vpp_core.report.plots import (
+            plan_plots,  # matplotlib: imported only when plots are asked
+        )
 
         files = {"plan.json": text.encode(), **plan_plots(part, doc, stats)}
         if stats is not None:
@@ -305,7 +307,7 @@ def run_study(args: argparse.Namespace) -> int:
         _write(args.csv, study_csv(study))
         print(f"rows written to {args.csv}")
     if args.plots:
-        from vpp_core.plots import study_plots
+        from vpp_core.report.plots import study_plots
 
         data = {"study.json": text.encode(), "study.csv": study_csv(study).encode()}
         _write_all(args.plots, {**data, **study_plots(study)})

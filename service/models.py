@@ -7,8 +7,8 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from vpp_core.document import PlanRequest
-from vpp_core.studies import DEFAULT_RATIOS, DEFAULT_RESOLUTIONS
+from vpp_core.plan.document import PlanRequest
+from vpp_core.report.studies import DEFAULT_RATIOS, DEFAULT_RESOLUTIONS
 
 
 class MeshSummary(BaseModel):

@@ -13,12 +13,12 @@ from redis import Redis
 from rq import Queue
 
 from service.models import JobOut, MeshSummary, PlanSubmit, RelatedPlan, RelatedPlans, StudySubmit
-from vpp_core.document import PlanRequest
 from vpp_core.errors import NotFoundError, TooLargeError, VppError
-from vpp_core.plan import check_request
-from vpp_core.scene import geometry_scene, plan_scene
-from vpp_core.studies import check_study
-from vpp_core.tessellate import load_part
+from vpp_core.mesh.tessellate import load_part
+from vpp_core.plan.document import PlanRequest
+from vpp_core.plan.pipeline import check_request
+from vpp_core.report.scene import geometry_scene, plan_scene
+from vpp_core.report.studies import check_study
 from worker import artifacts as art
 from worker import queue as jobs
 from worker.settings import Settings
@@ -201,7 +201,7 @@ def plan_json(store: Store, plan: str) -> bytes:
 
 
 def mesh_geometry(store: Store, mesh_id: str) -> bytes:
-    """The packed geometry of an uploaded mesh, for the viewer (vpp_core.scene)."""
+    """The packed geometry of an uploaded mesh, for the viewer (vpp_core.report.scene)."""
     return geometry_scene(art.get_part(store, content_id(mesh_id, "mesh")))
 
 

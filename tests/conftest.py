@@ -12,8 +12,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from vpp_core.mesh import Part, part_from_arrays
-from vpp_core.pose import Viewpoints, make_viewpoints
+from vpp_core.camera.pose import Viewpoints, make_viewpoints
+from vpp_core.mesh.part import Part, part_from_arrays
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared"

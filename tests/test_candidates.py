@@ -7,9 +7,9 @@ import pytest
 import trimesh
 from scipy.spatial import cKDTree
 
-from vpp_core.candidates import GeneratorSettings, generate, spaced_samples
-from vpp_core.mesh import load_mesh, part_from_arrays
-from vpp_core.sensor import Sensor
+from vpp_core.camera.sensor import Sensor
+from vpp_core.candidates.generator import GeneratorSettings, generate, spaced_samples
+from vpp_core.mesh.part import load_mesh, part_from_arrays
 
 SENSOR = Sensor()
 
@@ -97,7 +97,7 @@ def test_decimated_planning_mesh():
 def test_tilt_draws_directions_uniformly_by_solid_angle_within_the_cone():
     from scipy.stats import kstest
 
-    from vpp_core.candidates import tilt
+    from vpp_core.candidates.generator import tilt
 
     rng = np.random.default_rng(3)
     normals = rng.normal(size=(4000, 3))
@@ -134,7 +134,7 @@ def test_tilted_cameras_look_at_their_sample_from_within_the_cone():
 def test_tilted_candidates_see_hole_and_pocket_walls_from_more_than_one_pose():
     """featuretype.STL: along the normals, ~5 % of its faces are seen by one candidate only."""
     from tests.conftest import MESHES, shared_dir
-    from vpp_core.raytrace import trace_counts
+    from vpp_core.trace.raytrace import trace_counts
 
     data = (shared_dir(MESHES) / "featuretype.STL").read_bytes()
     part = load_mesh(data, "stl", units="in")

@@ -11,7 +11,7 @@ import pytest
 import trimesh
 
 from tests.conftest import MESHES, plate, shared_dir
-from vpp_core.mesh import load_mesh
+from vpp_core.mesh.part import load_mesh
 
 TWO_VIEWS = [
     {"position": [0, 0, 500], "gaze": [0, 0, -1]},

@@ -9,10 +9,10 @@ import pytest
 import scipy.sparse as sp
 from scipy.optimize import Bounds, LinearConstraint, linprog, milp
 
-from vpp_core.cover import is_cover
-from vpp_core.lpbound import IPM_TALL, columns_worth_keeping, lagrangian, lp_bound
+from vpp_core.cover.lpbound import IPM_TALL, columns_worth_keeping, lagrangian, lp_bound
+from vpp_core.cover.problem import is_cover
+from vpp_core.cover.setcover import solve_cover
 from vpp_core.samples import window_cover
-from vpp_core.setcover import solve_cover
 
 
 def random_instance(

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from vpp_core.density import cover_model, density_matrix
-from vpp_core.metrics import evaluate
+from vpp_core.cover.density import cover_model, density_matrix
+from vpp_core.plan.metrics import evaluate
 
 
 def random_counts(seed: int, m: int = 60, n: int = 8) -> tuple[np.ndarray, np.ndarray]:

@@ -1,4 +1,4 @@
-"""Diagnostics (vpp_core.diagnostics): each figure against a direct, independent count."""
+"""Diagnostics (vpp_core.plan.diagnostics): each figure against a direct, independent count."""
 
 from __future__ import annotations
 
@@ -8,7 +8,11 @@ import scipy.sparse as sp
 import trimesh
 
 from tests.conftest import look_down, plate
-from vpp_core.diagnostics import (
+from vpp_core.camera.pose import make_viewpoints
+from vpp_core.camera.sensor import Sensor
+from vpp_core.mesh.part import part_from_arrays
+from vpp_core.mesh.refine import refine
+from vpp_core.plan.diagnostics import (
     WELL_SEEN_RAYS,
     _element_hint,
     _hint,
@@ -19,12 +23,8 @@ from vpp_core.diagnostics import (
     sampled_area,
     undersampled,
 )
-from vpp_core.document import CandidateGenerator, PlanRequest, Target
-from vpp_core.mesh import part_from_arrays
-from vpp_core.pose import make_viewpoints
-from vpp_core.raytrace import make_backend, trace_counts
-from vpp_core.refine import refine
-from vpp_core.sensor import Sensor
+from vpp_core.plan.document import CandidateGenerator, PlanRequest, Target
+from vpp_core.trace.raytrace import make_backend, trace_counts
 
 SMALL = Sensor(width_px=320, height_px=200, fov_x_deg=38.7, fov_y_deg=24.75)
 
@@ -99,9 +99,9 @@ def plate_with_sliver():
 
 
 def test_plan_diagnostics_agree_with_direct_counts(plate_with_sliver):
-    from vpp_core.density import cover_model
-    from vpp_core.plan import candidates_for, finish
-    from vpp_core.raytrace import trace_counts
+    from vpp_core.cover.density import cover_model
+    from vpp_core.plan.pipeline import candidates_for, finish
+    from vpp_core.trace.raytrace import trace_counts
 
     part = plate_with_sliver
     request = PlanRequest(

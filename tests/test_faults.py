@@ -32,9 +32,9 @@ from rq.registry import StartedJobRegistry
 from rq.worker import Worker
 
 from tests.test_service_jobs import same_plan, submit, upload_sample, wait
-from vpp_core.document import PlanDocument, PlanRequest
-from vpp_core.mesh import load_mesh
-from vpp_core.plan import plan
+from vpp_core.mesh.part import load_mesh
+from vpp_core.plan.document import PlanDocument, PlanRequest
+from vpp_core.plan.pipeline import plan
 from vpp_core.samples import sample_stl
 from worker.pool import PARENT_ENV, WorkerPool, die_with_parent, stop_workers, worker_env
 from worker.store import FileStore

@@ -23,7 +23,7 @@ import pytest
 from service.app import create_app
 from tests.conftest import MESHES, ROOT, shared_dir
 from vpp_core.errors import LimitError
-from vpp_core.mesh import load_mesh
+from vpp_core.mesh.part import load_mesh
 from vpp_core.samples import sample_stl
 from worker.settings import Settings
 

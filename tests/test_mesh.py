@@ -1,4 +1,4 @@
-"""Tests of vpp_core.mesh: loading, validation, canonical id, degenerate faces, orientation."""
+"""Tests of vpp_core.mesh.part: loading, validation, canonical id, degenerate faces, orientation."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import trimesh
 
 from tests.conftest import MANIFEST_UNITS, manifest_rows
 from vpp_core.errors import LimitError, MeshError
-from vpp_core.mesh import FORMATS, UNITS_TO_MM, Part, load_mesh, mesh_id, part_from_arrays
+from vpp_core.mesh.part import FORMATS, UNITS_TO_MM, Part, load_mesh, mesh_id, part_from_arrays
 
 MESHES = Path(__file__).resolve().parents[1].parent / "shared/meshes"
 BAD = MESHES / "bad"

@@ -1,4 +1,4 @@
-"""HiGHS in its own process (vpp_core.mip): answers, the hard wall at the deadline, a child
+"""HiGHS in its own process (vpp_core.cover.mip): answers, the hard wall at the deadline, a child
 that dies or errs, forks, a parent that dies, and the search's compile kept off the clock."""
 
 from __future__ import annotations
@@ -18,8 +18,8 @@ import pytest
 import scipy.sparse as sp
 from scipy.optimize import Bounds, LinearConstraint, milp
 
-from vpp_core import mip
-from vpp_core.lpbound import highs_model
+from vpp_core.cover import mip
+from vpp_core.cover.lpbound import highs_model
 from vpp_core.samples import window_cover
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -146,7 +146,7 @@ def test_a_forked_process_gets_its_own_child() -> None:
 def test_the_child_ends_when_its_parent_is_killed() -> None:
     # The parent is killed while its child is busy (here: asleep in place of a long HiGHS run).
     code = (
-        "import functools, time; from vpp_core import mip; mip.warm();"
+        "import functools, time; from vpp_core.cover import mip; mip.warm();"
         "print(mip._child().proc.pid, flush=True);"
         "mip.solve_mip(functools.partial(time.sleep, 60), None, 60.0, 0.0, None)"
     )
@@ -174,7 +174,7 @@ def test_time_limit_holds_while_the_search_compiles(tmp_path: Path) -> None:
     code = textwrap.dedent(
         """
         from vpp_core.samples import window_cover
-        from vpp_core.setcover import solve_cover
+        from vpp_core.cover.setcover import solve_cover
         A = window_cover(40000, 800, seed=4)
         res = solve_cover(A, time_limit=1.5)
         print(res.time_s)
@@ -193,7 +193,7 @@ def test_the_highs_banner_is_shown_once_per_process(tmp_path: Path) -> None:
     code = textwrap.dedent(
         """
         from tests.test_mip import random_model, solve
-        from vpp_core import lpbound, mip
+        from vpp_core.cover import lpbound, mip
         lpbound.silent_highs({}, None)
         A, costs = random_model(0)
         solve(A, costs)

@@ -17,16 +17,16 @@ from tests.test_raster import (
     triangle_soup,
     unexplained,
 )
-from vpp_core.candidates import GeneratorSettings, generate
-from vpp_core.embree import EmbreeBackend, block_directions
+from vpp_core.camera.pose import Viewpoints, make_viewpoints
+from vpp_core.camera.sensor import Sensor
+from vpp_core.candidates.generator import GeneratorSettings, generate
 from vpp_core.errors import VppError
-from vpp_core.mesh import Part, load_mesh, part_from_arrays
-from vpp_core.packets import PacketBackend, library
-from vpp_core.pose import Viewpoints, make_viewpoints
-from vpp_core.raster import MAX_FACES_PER_PIXEL, RasterBackend
-from vpp_core.rays import Block
-from vpp_core.raytrace import _hull_points, make_backend, trace_counts, view_windows
-from vpp_core.sensor import Sensor
+from vpp_core.mesh.part import Part, load_mesh, part_from_arrays
+from vpp_core.trace.embree import EmbreeBackend, block_directions
+from vpp_core.trace.packets import PacketBackend, library
+from vpp_core.trace.raster import MAX_FACES_PER_PIXEL, RasterBackend
+from vpp_core.trace.rays import Block
+from vpp_core.trace.raytrace import _hull_points, make_backend, trace_counts, view_windows
 
 
 def packets(part: Part, major: int) -> PacketBackend:

@@ -1,4 +1,4 @@
-"""Partial cover (vpp_core.partial) against brute force, and its guarantees."""
+"""Partial cover (vpp_core.cover.partial) against brute force, and its guarantees."""
 
 from __future__ import annotations
 
@@ -14,9 +14,8 @@ import scipy.sparse as sp
 
 from tests.conftest import ROOT
 from tests.test_setcover import random_cover_model
-from vpp_core.errors import SolverError
-from vpp_core.lpbound import Relaxation, relaxation_bound, row_lagrangian
-from vpp_core.partial import (
+from vpp_core.cover.lpbound import Relaxation, relaxation_bound, row_lagrangian
+from vpp_core.cover.partial import (
     LP_HEAD_START_S,
     _merged,
     _model,
@@ -24,8 +23,9 @@ from vpp_core.partial import (
     satisfied_rows,
     solve_partial,
 )
-from vpp_core.reduce import row_groups
-from vpp_core.setcover import solve_cover
+from vpp_core.cover.reduce import row_groups
+from vpp_core.cover.setcover import solve_cover
+from vpp_core.errors import SolverError
 
 
 def random_model(rng: np.random.Generator, m: int, n: int, binary: bool) -> sp.csr_array:
@@ -184,16 +184,16 @@ def test_relaxation_bound_is_the_lp_value_and_any_multipliers_bound_it(seed):
 
 def test_lp_bound_alone_proves_an_integral_relaxation(monkeypatch):
     # disjoint views of equal area: any half of them is optimal and the LP value is n/2
-    monkeypatch.setattr("vpp_core.partial.solve_mip", lambda *a, **k: pytest.fail("MIP ran"))
+    monkeypatch.setattr("vpp_core.cover.partial.solve_mip", lambda *a, **k: pytest.fail("MIP ran"))
     out = solve_partial(sp.csr_array(np.eye(40)), np.ones(40), 0.5)
     assert (out.result.status, out.result.objective, out.result.bound) == ("optimal", 20, 20)
 
 
 def test_bound_is_the_lp_bound_when_the_mip_is_killed(monkeypatch):
-    # a MIP killed at its deadline answers nothing (vpp_core.mip): the bound is still the LP's
-    from vpp_core.mip import TIMED_OUT
+    # a MIP killed at its deadline answers nothing (vpp_core.cover.mip): the bound is still the LP's
+    from vpp_core.cover.mip import TIMED_OUT
 
-    monkeypatch.setattr("vpp_core.partial.solve_mip", lambda *a, **k: TIMED_OUT)
+    monkeypatch.setattr("vpp_core.cover.partial.solve_mip", lambda *a, **k: TIMED_OUT)
     rng = np.random.default_rng(1)
     A = random_model(rng, 1000, 100, binary=True)
     w = rng.random(1000)
@@ -207,8 +207,8 @@ def test_no_mip_starts_once_the_time_is_spent(monkeypatch):
     # merging and greedy took the whole limit (a big model on a loaded machine): neither the
     # LP's head start nor a MIP, which could outlive the deadline by its grace, is waited for
     slow_greedy = lambda *a: time.sleep(0.4) or greedy_partial(*a)  # noqa: E731
-    monkeypatch.setattr("vpp_core.partial.greedy_partial", slow_greedy)
-    monkeypatch.setattr("vpp_core.partial.solve_mip", lambda *a, **k: pytest.fail("MIP ran"))
+    monkeypatch.setattr("vpp_core.cover.partial.greedy_partial", slow_greedy)
+    monkeypatch.setattr("vpp_core.cover.partial.solve_mip", lambda *a, **k: pytest.fail("MIP ran"))
     rng = np.random.default_rng(1)
     out = solve_partial(
         random_model(rng, 1000, 100, binary=True), rng.random(1000), 0.99, time_limit=0.3
@@ -223,7 +223,7 @@ def test_a_process_ends_cleanly_after_a_cancelled_relaxation():
         """
         import numpy as np
         from tests.test_partial import partial_lp, random_model
-        from vpp_core.lpbound import Relaxation
+        from vpp_core.cover.lpbound import Relaxation
         rng = np.random.default_rng(1)
         A = random_model(rng, 4000, 200, binary=True)
         Relaxation(partial_lp(A, rng.random(4000), 0.99), 60.0).cancel()

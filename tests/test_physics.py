@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from tests.conftest import look_down, plate_part
-from vpp_core.density import density_matrix
-from vpp_core.mesh import part_from_arrays
-from vpp_core.raytrace import trace_counts
-from vpp_core.sensor import Sensor
+from vpp_core.camera.sensor import Sensor
+from vpp_core.cover.density import density_matrix
+from vpp_core.mesh.part import part_from_arrays
+from vpp_core.trace.raytrace import trace_counts
 
 PAPER = Sensor()
 
@@ -19,7 +19,7 @@ PAPER = Sensor()
 @pytest.fixture(autouse=True, params=["raster", "embree"])
 def backend(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> str:
     """Every physics check runs with each ray backend as the default."""
-    monkeypatch.setattr("vpp_core.raytrace.DEFAULT_BACKEND", request.param)
+    monkeypatch.setattr("vpp_core.trace.raytrace.DEFAULT_BACKEND", request.param)
     return str(request.param)
 
 
@@ -145,7 +145,7 @@ def test_culling_hull_contains_the_part():
     import trimesh
     from scipy.spatial import Delaunay
 
-    from vpp_core.raytrace import _hull_points
+    from vpp_core.trace.raytrace import _hull_points
 
     mesh = trimesh.creation.torus(major_radius=60, minor_radius=15)
     mesh.apply_translation([10, -300, 40])

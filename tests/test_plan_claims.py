@@ -16,9 +16,9 @@ import scipy.sparse as sp
 import trimesh
 from scipy.optimize import Bounds, LinearConstraint, milp
 
-from vpp_core.document import CandidateGenerator, PlanDocument, PlanRequest, Target
-from vpp_core.mesh import Part, part_from_arrays
-from vpp_core.sensor import Sensor
+from vpp_core.camera.sensor import Sensor
+from vpp_core.mesh.part import Part, part_from_arrays
+from vpp_core.plan.document import CandidateGenerator, PlanDocument, PlanRequest, Target
 
 SMALL = Sensor(width_px=320, height_px=200, fov_x_deg=38.7, fov_y_deg=24.75)
 
@@ -98,7 +98,7 @@ def part() -> Part:
 @pytest.mark.parametrize("tilt", [0.0, 30.0])
 @pytest.mark.parametrize("formulation", ["density", "visibility"])
 def test_claims_hold_independently(part, formulation, tilt):
-    from vpp_core.plan import plan
+    from vpp_core.plan.pipeline import plan
 
     res = 1.2  # mm: this small sensor's pitch at 500 mm is ~1.1 mm
     request = PlanRequest(
@@ -138,7 +138,7 @@ def test_claims_hold_independently(part, formulation, tilt):
 
 
 def test_density_needs_more_views_than_visibility(part):
-    from vpp_core.plan import plan
+    from vpp_core.plan.pipeline import plan
 
     counts = {}
     for formulation in ("density", "visibility"):
@@ -178,7 +178,7 @@ def partial_optimum(s: np.ndarray, w: np.ndarray, fraction: float) -> int:
 
 @pytest.mark.parametrize("formulation", ["density", "visibility"])
 def test_partial_cover_claims_hold_independently(part, formulation):
-    from vpp_core.plan import plan
+    from vpp_core.plan.pipeline import plan
 
     res, fraction = 1.2, 0.97
     request = PlanRequest(

@@ -10,10 +10,10 @@ import pytest
 from scipy.spatial import cKDTree
 
 from tests.conftest import plate_part
-from vpp_core.pointcloud import neighbour_counts, simulate, write_ply
-from vpp_core.pose import make_viewpoints
-from vpp_core.raytrace import make_backend, trace_counts
-from vpp_core.sensor import Sensor
+from vpp_core.camera.pose import make_viewpoints
+from vpp_core.camera.sensor import Sensor
+from vpp_core.report.pointcloud import neighbour_counts, simulate, write_ply
+from vpp_core.trace.raytrace import make_backend, trace_counts
 
 PAPER = Sensor()
 
@@ -58,7 +58,7 @@ def test_neighbour_counts_match_a_brute_force_kdtree_across_slabs(
 ) -> None:
     rng = np.random.default_rng(3)
     pts = (rng.random((20_000, 3)) * [10.0, 3.0, 1.0]).astype(np.float32)
-    monkeypatch.setattr("vpp_core.pointcloud.SLAB_POINTS", 1_500)  # many slabs
+    monkeypatch.setattr("vpp_core.report.pointcloud.SLAB_POINTS", 1_500)  # many slabs
     counts, nearest = neighbour_counts(pts, 0.12)
     tree = cKDTree(pts.astype(np.float64))
     truth = tree.query_ball_point(pts.astype(np.float64), 0.12, return_length=True) - 1

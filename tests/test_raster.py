@@ -9,16 +9,16 @@ import numpy as np
 import pytest
 
 from tests.conftest import MANIFEST_UNITS, MESHES, manifest_rows, plate_part, shared_dir
-from vpp_core.candidates import GeneratorSettings, generate
-from vpp_core.document import CandidateGenerator, PlanRequest
-from vpp_core.embree import EmbreeBackend, block_directions
-from vpp_core.mesh import Part, load_mesh, part_from_arrays
-from vpp_core.plan import plan
-from vpp_core.pose import Viewpoints, make_viewpoints
-from vpp_core.raster import RasterBackend, pixel_scale, view_first_hits
-from vpp_core.rays import Block
-from vpp_core.raytrace import _hull_points, make_backend, trace_counts, view_windows
-from vpp_core.sensor import Sensor
+from vpp_core.camera.pose import Viewpoints, make_viewpoints
+from vpp_core.camera.sensor import Sensor
+from vpp_core.candidates.generator import GeneratorSettings, generate
+from vpp_core.mesh.part import Part, load_mesh, part_from_arrays
+from vpp_core.plan.document import CandidateGenerator, PlanRequest
+from vpp_core.plan.pipeline import plan
+from vpp_core.trace.embree import EmbreeBackend, block_directions
+from vpp_core.trace.raster import RasterBackend, pixel_scale, view_first_hits
+from vpp_core.trace.rays import Block
+from vpp_core.trace.raytrace import _hull_points, make_backend, trace_counts, view_windows
 
 PAPER = Sensor()
 EDGE_PX = 1e-2

@@ -9,8 +9,8 @@ import scipy.sparse as sp
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from vpp_core.reduce import reduce_cover
-from vpp_core.setcover import COVER_TOL, is_cover, solve_cover
+from vpp_core.cover.reduce import reduce_cover
+from vpp_core.cover.setcover import COVER_TOL, is_cover, solve_cover
 
 
 def brute_optimum(A: np.ndarray, costs: np.ndarray) -> float:

@@ -1,4 +1,4 @@
-"""Tests of vpp_core.refine: area elements keep the surface, and count what a view really sees."""
+"""Tests of vpp_core.mesh.refine: area elements keep the surface, and count what a view sees."""
 
 from __future__ import annotations
 
@@ -7,11 +7,11 @@ import pytest
 import trimesh
 
 from tests.conftest import MESHES, look_down, plate, shared_dir
+from vpp_core.camera.sensor import Sensor
 from vpp_core.errors import LimitError, MeshError
-from vpp_core.mesh import load_mesh, part_from_arrays
-from vpp_core.raytrace import trace_counts
-from vpp_core.refine import bisect, generations, refine, refined_faces
-from vpp_core.sensor import Sensor
+from vpp_core.mesh.part import load_mesh, part_from_arrays
+from vpp_core.mesh.refine import bisect, generations, refine, refined_faces
+from vpp_core.trace.raytrace import trace_counts
 
 
 def test_plate_splits_into_equal_elements_no_larger_than_asked():

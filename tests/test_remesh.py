@@ -1,5 +1,5 @@
-"""Isotropic remeshing before planning (vpp_core.remesh.remesh, vpp_core.tessellate): the same
-surface with even faces, within the face limit; checked against the part's analytic profile."""
+"""Isotropic remeshing before planning (vpp_core.mesh.remesh.remesh, vpp_core.mesh.tessellate):
+the same surface with even faces, within the face limit; checked against the analytic profile."""
 
 from __future__ import annotations
 
@@ -7,12 +7,12 @@ import numpy as np
 import pytest
 
 from vpp_core.errors import LimitError, MeshError
-from vpp_core.mesh import load_mesh
+from vpp_core.mesh.part import load_mesh
+from vpp_core.mesh.tessellate import load_part
 from vpp_core.samples import sample_stl
-from vpp_core.tessellate import load_part
 
 pytest.importorskip("pymeshlab")
-from vpp_core.remesh import remesh, remeshed_faces  # noqa: E402
+from vpp_core.mesh.remesh import remesh, remeshed_faces  # noqa: E402
 
 PROFILE = np.array([[8, 0], [30, 0], [30, 8], [15, 8], [15, 40], [8, 40], [8, 0]], dtype=float)
 """(radius, z) mm of the sample bushing's cross-section (vpp_core.samples.flanged_bushing)."""

@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from tests.test_cover_search import all_covers, random_instance
-from vpp_core import rowweight
-from vpp_core.cover import BUILD_TOL, is_cover
-from vpp_core.greedy import greedy_cover
-from vpp_core.orlib import parse_orlib
+from vpp_core.cover import rowweight
+from vpp_core.cover.greedy import greedy_cover
+from vpp_core.cover.orlib import parse_orlib
+from vpp_core.cover.problem import BUILD_TOL, is_cover
 from vpp_core.samples import window_cover
 
 ORLIB = Path("../shared/data/orlib-scp")

@@ -8,13 +8,11 @@ import numpy as np
 import pytest
 
 from tests.test_service_jobs import submit, upload_sample, wait
-from vpp_core.document import PlanRequest
 from vpp_core.errors import VppError
-from vpp_core.mesh import load_mesh
-from vpp_core.plan import candidates_for, finish
-from vpp_core.raytrace import make_backend, trace_counts
-from vpp_core.samples import sample_stl
-from vpp_core.scene import (
+from vpp_core.mesh.part import load_mesh
+from vpp_core.plan.document import PlanRequest
+from vpp_core.plan.pipeline import candidates_for, finish
+from vpp_core.report.scene import (
     EXCLUDED,
     MET,
     UNCOVERABLE,
@@ -26,6 +24,8 @@ from vpp_core.scene import (
     plan_scene,
     unpack,
 )
+from vpp_core.samples import sample_stl
+from vpp_core.trace.raytrace import make_backend, trace_counts
 from worker import artifacts as art
 
 SMALL = {"width_px": 320, "height_px": 200}

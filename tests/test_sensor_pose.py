@@ -7,9 +7,9 @@ import math
 import numpy as np
 import pytest
 
+from vpp_core.camera.pose import make_viewpoints
+from vpp_core.camera.sensor import Sensor, make_sensor
 from vpp_core.errors import SensorError, ViewpointError
-from vpp_core.pose import make_viewpoints
-from vpp_core.sensor import Sensor, make_sensor
 
 
 def test_defaults_are_the_paper_camera():

@@ -11,7 +11,7 @@ import trimesh
 from service.app import create_app
 from service.openapi import text as openapi_text
 from tests.conftest import MESHES, ROOT, shared_dir
-from vpp_core.mesh import load_mesh
+from vpp_core.mesh.part import load_mesh
 from vpp_core.samples import flanged_bushing, sample_stl
 from worker.settings import Settings
 

@@ -9,9 +9,9 @@ import time
 import pytest
 from rq.registry import StartedJobRegistry
 
-from vpp_core.document import PlanDocument, PlanRequest
-from vpp_core.mesh import load_mesh
-from vpp_core.plan import plan
+from vpp_core.mesh.part import load_mesh
+from vpp_core.plan.document import PlanDocument, PlanRequest
+from vpp_core.plan.pipeline import plan
 from vpp_core.samples import sample_stl
 
 pytestmark = pytest.mark.slow

@@ -9,10 +9,10 @@ import pytest
 import trimesh
 
 from tests.test_service_jobs import submit, upload_sample, wait
-from vpp_core.document import PlanRequest
-from vpp_core.mesh import load_mesh
+from vpp_core.mesh.part import load_mesh
+from vpp_core.plan.document import PlanRequest
+from vpp_core.report.studies import resolution_sweep
 from vpp_core.samples import sample_stl
-from vpp_core.studies import resolution_sweep
 
 pytestmark = pytest.mark.slow
 SMALL = {"width_px": 320, "height_px": 200}

@@ -15,18 +15,18 @@ import scipy.sparse as sp
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from vpp_core import mip, setcover
-from vpp_core.errors import SolverError
-from vpp_core.lpbound import LpBound
-from vpp_core.orlib import parse_orlib
-from vpp_core.reduce import blocks, unique_rows
-from vpp_core.setcover import (
+from vpp_core.cover import mip, setcover
+from vpp_core.cover.lpbound import LpBound
+from vpp_core.cover.orlib import parse_orlib
+from vpp_core.cover.reduce import blocks, unique_rows
+from vpp_core.cover.setcover import (
     CoverResult,
     greedy_cover,
     is_cover,
     remove_redundant,
     solve_cover,
 )
+from vpp_core.errors import SolverError
 
 ORLIB = Path(__file__).resolve().parents[1].parent / "shared/data/orlib-scp"
 ORLIB_EXACT = [f"scp4{i}" for i in range(1, 11)] + [f"scp5{i}" for i in range(1, 11)]

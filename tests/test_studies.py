@@ -9,12 +9,12 @@ import pytest
 import trimesh
 
 from tests.test_plan_claims import SMALL, _c2w, recount, stepped_part
-from vpp_core.document import CandidateGenerator, PlanRequest, Target
 from vpp_core.errors import VppError
-from vpp_core.mesh import Part, part_from_arrays
-from vpp_core.plan import plan
-from vpp_core.plots import study_plots
-from vpp_core.studies import decimation_study, resolution_sweep, study_csv
+from vpp_core.mesh.part import Part, part_from_arrays
+from vpp_core.plan.document import CandidateGenerator, PlanRequest, Target
+from vpp_core.plan.pipeline import plan
+from vpp_core.report.plots import study_plots
+from vpp_core.report.studies import decimation_study, resolution_sweep, study_csv
 
 RESOLUTIONS = [0.9, 1.4, 2.5]
 """mm: around this small sensor's 1.1 mm pitch at 500 mm, so the density count changes."""
@@ -52,7 +52,7 @@ def test_sweep_counts_equal_fresh_plans(part, sweep) -> None:
 
 
 def test_sweep_traces_once(part, monkeypatch) -> None:
-    import vpp_core.studies as studies
+    import vpp_core.report.studies as studies
 
     calls = []
     real = studies.trace_counts

@@ -7,9 +7,9 @@ documented partial cover (min_coverage 0.999) the counts must agree within 1 and
 must cover at least 99.9 % of their coverable area. With candidates tilted up to 30°, the
 same setting holds on plate_holes against a 4 mm remesh (visibility), and makes featuretype's
 count independent of the generator's seed (within 1).
-On 1 mm² area elements (vpp_core.refine), the CAD plan also sees what it claims: traced on
+On 1 mm² area elements (vpp_core.mesh.refine), the CAD plan also sees what it claims: traced on
 the remesh, it sees what the remesh's candidates reach. Remeshed both at 1 mm before planning
-(vpp_core.remesh.remesh, --remesh 1), featuretype's two exports agree within 1 at F = 0.99.
+(vpp_core.mesh.remesh.remesh, --remesh 1), featuretype's two exports agree within 1 at F = 0.99.
 """
 
 from __future__ import annotations
@@ -19,14 +19,14 @@ import pytest
 import scipy.sparse as sp
 
 from tests.conftest import MESHES, shared_dir
-from vpp_core.document import (
+from vpp_core.mesh.part import Part, load_mesh
+from vpp_core.plan.document import (
     CandidateGenerator,
     PlanDocument,
     PlanRequest,
     SolverSettings,
     Target,
 )
-from vpp_core.mesh import Part, load_mesh
 
 MIN_COVERAGE = 0.999
 """The documented partial-cover setting (docs/cad-meshes.md)."""
@@ -36,7 +36,7 @@ COMPARE_COVERAGE = 0.99
 
 def partial_view_counts(pairs: list[tuple[Part, PlanRequest]]) -> list[int]:
     """Views of each (part, request) plan, each checked to cover the requested fraction."""
-    from vpp_core.plan import plan
+    from vpp_core.plan.pipeline import plan
 
     counts = []
     for part, request in pairs:
@@ -51,7 +51,7 @@ def partial_view_counts(pairs: list[tuple[Part, PlanRequest]]) -> list[int]:
 def two_tessellations() -> tuple[Part, Part]:
     data = (shared_dir(MESHES) / "hirth_sample_small.stl").read_bytes()
     pytest.importorskip("pymeshlab")
-    from vpp_core.remesh import isotropic_remesh
+    from vpp_core.mesh.remesh import isotropic_remesh
 
     cad = load_mesh(data, "stl")
     iso = isotropic_remesh(cad, 1.0)
@@ -77,7 +77,7 @@ def test_tilted_candidates_keep_plate_holes_counts_within_one_across_tessellatio
     """plate_holes.STL against a 4 mm remesh: along the normals 5 and 8 views at F = 0.999
     (docs/cad-meshes.md); with candidates tilted up to 30°, 5 and 6."""
     pytest.importorskip("pymeshlab")
-    from vpp_core.remesh import isotropic_remesh
+    from vpp_core.mesh.remesh import isotropic_remesh
 
     cad = load_mesh((shared_dir(MESHES) / "plate_holes.STL").read_bytes(), "stl")
     iso = isotropic_remesh(cad, 4.0)
@@ -111,8 +111,8 @@ def test_tilted_candidates_make_the_count_independent_of_the_seed():
 def seen_share(doc: PlanDocument, other: PlanDocument, part: Part) -> float:
     """Share of the area of `part` (planned in `other`) reachable by other's candidates that
     doc's viewpoints see, traced independently on `part`."""
-    from vpp_core.plan import explicit_viewpoints
-    from vpp_core.raytrace import trace_counts
+    from vpp_core.plan.pipeline import explicit_viewpoints
+    from vpp_core.trace.raytrace import trace_counts
 
     def seen(doc: PlanDocument, views: list) -> np.ndarray:
         counts = sp.csr_array(trace_counts(part, doc.sensor, explicit_viewpoints(views)).counts)
@@ -127,8 +127,8 @@ def test_area_elements_make_a_cad_plan_see_what_it_claims(two_tessellations):
     """On 1 mm² elements (--max-face-area 1), the CAD Hirth joint's plan, traced on the remesh,
     sees ≥ 99 % of what the remesh's candidates reach, and the counts agree within 1
     (docs/cad-meshes.md: 4 and 4 views, seeing 99.4 %; on the CAD faces 3 views see 97.5 %)."""
-    from vpp_core.plan import plan
-    from vpp_core.refine import refine
+    from vpp_core.mesh.refine import refine
+    from vpp_core.plan.pipeline import plan
 
     cad, iso = (refine(part, 1.0) for part in two_tessellations)
     assert cad.n_faces > 3 * two_tessellations[0].n_faces and cad.areas.max() <= 1.0
@@ -150,7 +150,7 @@ def test_remeshing_both_exports_makes_featuretype_counts_agree():
     with another installation's remesh (docs/cad-meshes.md). On 1 mm² elements instead they
     need 17 and 21; at F = 0.999 even remeshes can differ by 8."""
     pytest.importorskip("pymeshlab")
-    from vpp_core.remesh import isotropic_remesh, remesh
+    from vpp_core.mesh.remesh import isotropic_remesh, remesh
 
     cad = load_mesh((shared_dir(MESHES) / "featuretype.STL").read_bytes(), "stl", units="in")
     exports = [cad, isotropic_remesh(cad, 1.0)]

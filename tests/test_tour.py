@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.spatial.distance import cdist
 
-from vpp_core.tour import _nearest_neighbour, path_length, visiting_order
+from vpp_core.plan.tour import _nearest_neighbour, path_length, visiting_order
 
 
 @pytest.mark.parametrize("seed", range(5))

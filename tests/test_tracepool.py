@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from tests.conftest import look_down, plate_part
-from vpp_core.raytrace import ORDER_VIEWS_PER_THREAD, make_backend, trace_counts
-from vpp_core.sensor import Sensor
+from vpp_core.camera.sensor import Sensor
+from vpp_core.trace.raytrace import ORDER_VIEWS_PER_THREAD, make_backend, trace_counts
 
 PAPER = Sensor()
 

@@ -19,9 +19,9 @@ import pytest
 
 from tests.conftest import serving
 from tests.test_service_jobs import submit, upload_sample, wait
-from vpp_core.mesh import load_mesh
+from vpp_core.mesh.part import load_mesh
+from vpp_core.report.scene import unpack
 from vpp_core.samples import sample_stl
-from vpp_core.scene import unpack
 
 pytestmark = pytest.mark.slow
 SENSOR = {"width_px": 480, "height_px": 300}

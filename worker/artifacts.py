@@ -8,7 +8,7 @@ traces/<trace id>/chunks-<size>/<i>.npz  R of candidates [i·size, (i+1)·size)
 traces/<trace id>/counts.npz    the assembled R (M faces × N candidates) and its ray figures
 plans/<plan id>.json            the plan document (SPEC §8)
 plans/<plan id>/<name>.png      its plots (histogram, cameras)
-plans/<plan id>/scene.bin.gz    its per-face results for the viewer (vpp_core.scene), gzipped
+plans/<plan id>/scene.bin.gz    its per-face results for the viewer (vpp_core.report.scene), gzipped
 studies/<study id>.json|.csv    a study's document and rows; studies/<study id>/<name>.png its plots
 clouds/<cloud id>.ply|.json     a plan's simulated point cloud and its statistics (+ neighbours.png)
 
@@ -28,11 +28,11 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
-from vpp_core.document import CandidateInfo, PlanDocument, PlanRequest
-from vpp_core.mesh import Part
-from vpp_core.pose import Viewpoints
-from vpp_core.raytrace import Trace
-from vpp_core.sensor import Sensor
+from vpp_core.camera.pose import Viewpoints
+from vpp_core.camera.sensor import Sensor
+from vpp_core.mesh.part import Part
+from vpp_core.plan.document import CandidateInfo, PlanDocument, PlanRequest
+from vpp_core.trace.raytrace import Trace
 from worker.store import Store
 
 

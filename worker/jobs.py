@@ -26,16 +26,16 @@ from redis import Redis
 from rq import Queue, Retry, get_current_job
 from rq.job import Job, JobStatus
 
-from vpp_core.document import PlanRequest, Timings
+from vpp_core.camera.pose import Viewpoints
+from vpp_core.camera.sensor import Sensor
 from vpp_core.errors import VppError
-from vpp_core.mesh import Part
-from vpp_core.plan import candidates_for, check_limits, finish
-from vpp_core.plots import plan_plots
-from vpp_core.pose import Viewpoints
-from vpp_core.rays import RayBackend
-from vpp_core.raytrace import Trace, join_traces, make_backend, trace_counts
-from vpp_core.scene import plan_scene
-from vpp_core.sensor import Sensor
+from vpp_core.mesh.part import Part
+from vpp_core.plan.document import PlanRequest, Timings
+from vpp_core.plan.pipeline import candidates_for, check_limits, finish
+from vpp_core.report.plots import plan_plots
+from vpp_core.report.scene import plan_scene
+from vpp_core.trace.rays import RayBackend
+from vpp_core.trace.raytrace import Trace, join_traces, make_backend, trace_counts
 from worker import artifacts as art
 from worker.faults import delete_job, fail_fast, failure_reason
 from worker.settings import Settings, get_settings

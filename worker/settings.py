@@ -7,7 +7,7 @@ from functools import lru_cache
 from pydantic import Field, SecretStr, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
-from vpp_core.plan import Limits
+from vpp_core.plan.pipeline import Limits
 
 
 class Settings(BaseSettings):

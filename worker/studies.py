@@ -12,9 +12,9 @@ import io
 import json
 from typing import Any
 
-from vpp_core.plots import neighbours_png, study_plots
-from vpp_core.pointcloud import simulate_plan, write_ply
-from vpp_core.studies import decimation_study, resolution_sweep, study_csv
+from vpp_core.report.plots import neighbours_png, study_plots
+from vpp_core.report.pointcloud import simulate_plan, write_ply
+from vpp_core.report.studies import decimation_study, resolution_sweep, study_csv
 from worker import artifacts as art
 from worker.jobs import Context, run_job, stage_progress
 

@@ -10,8 +10,8 @@ from fastapi import APIRouter, Header, Response
 from service import planning
 from service.deps import QueueDep, SettingsDep, StoreDep
 from service.models import JobAccepted, PlanSubmit, Problem
-from vpp_core.document import PlanDocument
-from vpp_core.pointcloud import CloudStats
+from vpp_core.plan.document import PlanDocument
+from vpp_core.report.pointcloud import CloudStats
 from worker import artifacts as art
 
 router = APIRouter(prefix="/v1/plans", tags=["plans"])

@@ -10,7 +10,7 @@ from service import planning
 from service.deps import QueueDep, SettingsDep, StoreDep
 from service.models import JobAccepted, Problem, StudyPlots, StudySubmit
 from service.routers.plans import IMMUTABLE, accepted
-from vpp_core.studies import Study
+from vpp_core.report.studies import Study
 from worker import artifacts as art
 
 router = APIRouter(prefix="/v1/studies", tags=["studies"])

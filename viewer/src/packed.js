@@ -1,4 +1,4 @@
-// Reader of the packed scene files the API serves (vpp_core/scene.py: `pack`).
+// Reader of the packed scene files the API serves (vpp_core/report/scene.py: `pack`).
 const TYPES = { float32: Float32Array, uint32: Uint32Array, uint8: Uint8Array };
 
 /** {meta, arrays}: the JSON header and zero-copy typed arrays of a packed scene file. */

@@ -1,5 +1,5 @@
 // Face colours: achieved resolution r* against the target r̄, and the face states of
-// vpp_core/scene.py (met, unmet, uncovered, uncoverable, excluded). sRGB bytes.
+// vpp_core/report/scene.py (met, unmet, uncovered, uncoverable, excluded). sRGB bytes.
 export const STATES = ['met', 'unmet', 'uncovered', 'uncoverable', 'excluded'];
 export const SPAN = 2; // the scale runs over r* in [0, SPAN·r̄]; beyond it, the last colour
 const MET = [[8, 69, 148], [66, 146, 198], [116, 196, 118]]; // fine → just meets r̄

@@ -1,7 +1,7 @@
 """SPEC §3 on a window of pixel rays whose first hits are known.
 
-The pixel backends (`vpp_core.raster`, `vpp_core.packets`) find the first face hit through
-each pixel centre of a window and its depth; the checks and the counting per face are the
+The pixel backends (`vpp_core.trace.raster`, `vpp_core.trace.packets`) find the first face hit
+through each pixel centre of a window and its depth; the checks and the counting per face are the
 same for both, and compiled here.
 """
 
@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from vpp_core.jit import inline, kernel
-from vpp_core.rays import Block, Hits, PixelHits
+from vpp_core.trace.rays import Block, Hits, PixelHits
 
 Triple = tuple[float, float, float]
 

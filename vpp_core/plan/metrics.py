@@ -10,7 +10,7 @@ import numpy as np
 import scipy.sparse as sp
 from pydantic import BaseModel
 
-from vpp_core.density import density_matrix, meets
+from vpp_core.cover.density import density_matrix, meets
 
 HIST_BINS = 30
 HIST_SPAN = 3.0

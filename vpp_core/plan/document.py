@@ -6,10 +6,10 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field
 
-from vpp_core.diagnostics import Diagnostics
-from vpp_core.metrics import Metrics
-from vpp_core.rays import DEFAULT_BACKEND, BackendName
-from vpp_core.sensor import Sensor
+from vpp_core.camera.sensor import Sensor
+from vpp_core.plan.diagnostics import Diagnostics
+from vpp_core.plan.metrics import Metrics
+from vpp_core.trace.rays import DEFAULT_BACKEND, BackendName
 
 Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
 

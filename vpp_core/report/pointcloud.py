@@ -16,14 +16,14 @@ import numpy as np
 from pydantic import BaseModel
 from scipy.spatial import cKDTree
 
-from vpp_core.document import PlanDocument
+from vpp_core.camera.pose import Viewpoints
+from vpp_core.camera.sensor import Sensor
 from vpp_core.errors import LimitError
-from vpp_core.mesh import Part
-from vpp_core.plan import explicit_viewpoints
-from vpp_core.pose import Viewpoints
-from vpp_core.rays import RayBackend
-from vpp_core.raytrace import make_backend, view_blocks
-from vpp_core.sensor import Sensor
+from vpp_core.mesh.part import Part
+from vpp_core.plan.document import PlanDocument
+from vpp_core.plan.pipeline import explicit_viewpoints
+from vpp_core.trace.rays import RayBackend
+from vpp_core.trace.raytrace import make_backend, view_blocks
 
 SLAB_POINTS = 2_000_000
 """Points per slab of the neighbour count (its KD-tree holds these plus the margins)."""

@@ -27,7 +27,7 @@ from functools import cache
 import numpy as np
 import scipy.sparse as sp
 
-from vpp_core.cover import BUILD_TOL, integral_costs
+from vpp_core.cover.problem import BUILD_TOL, integral_costs
 from vpp_core.jit import inline, kernel
 
 Arr = np.ndarray

@@ -25,12 +25,12 @@ import math
 
 import numpy as np
 
+from vpp_core.camera.sensor import Sensor
 from vpp_core.jit import inline, kernel
-from vpp_core.mesh import Part
-from vpp_core.packets import PacketBackend
-from vpp_core.pixels import FirstHits, Triple, window_of
-from vpp_core.rays import Block, Hits, PixelHits
-from vpp_core.sensor import Sensor
+from vpp_core.mesh.part import Part
+from vpp_core.trace.packets import PacketBackend
+from vpp_core.trace.pixels import FirstHits, Triple, window_of
+from vpp_core.trace.rays import Block, Hits, PixelHits
 
 Z_CLIP = 1e-6
 """Near clipping plane (mm) of the rasteriser: rays start at the camera, t > 0."""
@@ -38,7 +38,7 @@ Z_CLIP = 1e-6
 
 MAX_FACES_PER_PIXEL = 0.25
 """A view whose window has fewer pixels than faces / MAX_FACES_PER_PIXEL is traced by Embree
-packets instead (`vpp_core.packets`): drawing costs per face, tracing per ray
+packets instead (`vpp_core.trace.packets`): drawing costs per face, tracing per ray
 (bench/raytrace.py; docs/raytrace.md)."""
 
 

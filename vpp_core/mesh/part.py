@@ -5,8 +5,8 @@ coordinates -> scale to mm -> canonicalize (merge identical vertices, lexicograp
 order, each face rotated so its smallest index comes first; face order and winding kept) ->
 areas, unit normals, degenerate and duplicate faces -> outward orientation of closed shells.
 
-Orientation (vpp_core.orientation): shells are faces connected through shared edges (merged within
-TOPOLOGY_MERGE_REL for this only). A shell is closed when every edge is used equally often in
+Orientation (vpp_core.mesh.orientation): shells are faces connected through shared edges (merged
+within TOPOLOGY_MERGE_REL for this only). A shell is closed when every edge is used equally often in
 both directions (so touching solids with non-manifold edges count too); an inconsistently wound
 manifold closed shell is first made consistent by a BFS over its faces. Closed shells with
 negative signed volume get their normals flipped. `faces` always keep the file's winding.
@@ -27,8 +27,8 @@ from numpy.typing import NDArray
 from trimesh import Trimesh
 
 from vpp_core.errors import LimitError, MeshError
-from vpp_core.meshio import announced_size, parse_mesh_bytes, ply_bytes
-from vpp_core.orientation import orientation_signs
+from vpp_core.mesh.meshio import announced_size, parse_mesh_bytes, ply_bytes
+from vpp_core.mesh.orientation import orientation_signs
 
 UNITS_TO_MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0, "in": 25.4}
 """Length unit name -> millimetres per unit."""

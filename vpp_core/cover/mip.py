@@ -32,7 +32,7 @@ from pathlib import Path
 import highspy
 import numpy as np
 
-from vpp_core.lpbound import HighsOption, run_highs, silent_highs
+from vpp_core.cover.lpbound import HighsOption, run_highs, silent_highs
 
 log = logging.getLogger(__name__)
 
@@ -258,7 +258,7 @@ def _start() -> _Child:
     env = dict(os.environ)
     root = str(Path(__file__).resolve().parents[1])  # vpp_core importable without an install
     env["PYTHONPATH"] = os.pathsep.join(p for p in (root, env.get("PYTHONPATH")) if p)
-    code = f"from vpp_core.mip import _serve; _serve({theirs.fileno()})"
+    code = f"from vpp_core.cover.mip import _serve; _serve({theirs.fileno()})"
     proc = subprocess.Popen(
         [sys.executable, "-c", code], pass_fds=[theirs.fileno()], stdin=subprocess.DEVNULL, env=env
     )

@@ -5,7 +5,7 @@ A is (M rows × N columns); rows are faces, columns candidate viewpoints. A is e
 may add up to cover a row). `solve_cover(method="greedy")` is greedy + redundancy removal;
 `method="milp"` reduces the model, then spends its time on the LP bound, a quick exact
 HiGHS try, a row-weighting local search, HiGHS on a core and HiGHS on the
-reduced-cost-fixed model (docs/setcover.md). Tolerances are those of `vpp_core.cover`.
+reduced-cost-fixed model (docs/setcover.md). Tolerances are those of `vpp_core.cover.problem`.
 """
 
 from __future__ import annotations
@@ -20,8 +20,15 @@ import highspy
 import numpy as np
 import scipy.sparse as sp
 
-from vpp_core import mip, rowweight
-from vpp_core.cover import (
+from vpp_core.cover import mip, rowweight
+from vpp_core.cover.greedy import complete_cover, greedy_cover, prune_cover, remove_redundant
+from vpp_core.cover.lpbound import (
+    LpBound,
+    columns_worth_keeping,
+    highs_model,
+    lp_bound,
+)
+from vpp_core.cover.problem import (
     COVER_TOL,
     SparseLike,
     as_costs,
@@ -31,14 +38,7 @@ from vpp_core.cover import (
     integral_costs,
     is_cover,
 )
-from vpp_core.greedy import complete_cover, greedy_cover, prune_cover, remove_redundant
-from vpp_core.lpbound import (
-    LpBound,
-    columns_worth_keeping,
-    highs_model,
-    lp_bound,
-)
-from vpp_core.reduce import blocks, reduce_cover
+from vpp_core.cover.reduce import blocks, reduce_cover
 
 __all__ = [
     "COVER_TOL",

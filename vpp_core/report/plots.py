@@ -15,12 +15,12 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.ticker import NullFormatter, ScalarFormatter
 
-from vpp_core.candidates import planning_mesh
-from vpp_core.document import PlanDocument
-from vpp_core.mesh import Part
-from vpp_core.metrics import Histogram
-from vpp_core.pointcloud import CloudStats
-from vpp_core.studies import DecimationRow, Study, SweepRow
+from vpp_core.candidates.generator import planning_mesh
+from vpp_core.mesh.part import Part
+from vpp_core.plan.document import PlanDocument
+from vpp_core.plan.metrics import Histogram
+from vpp_core.report.pointcloud import CloudStats
+from vpp_core.report.studies import DecimationRow, Study, SweepRow
 
 STYLE = {"density": ("tab:red", "-", "o"), "visibility": ("tab:blue", "--", "*")}
 """Colour, line and marker per formulation (the paper's: red = S, blue = V)."""

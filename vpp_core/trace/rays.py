@@ -13,10 +13,10 @@ from typing import Literal, Protocol, get_args
 
 import numpy as np
 
-from vpp_core.sensor import Sensor
+from vpp_core.camera.sensor import Sensor
 
 BackendName = Literal["raster", "packets", "embree"]
-"""The ray backends (vpp_core.raytrace.make_backend); the first is the default."""
+"""The ray backends (vpp_core.trace.raytrace.make_backend); the first is the default."""
 
 DEFAULT_BACKEND: BackendName = get_args(BackendName)[0]
 """The fastest backend (docs/raytrace.md): the CLI's and the plan request's default."""

@@ -4,7 +4,7 @@
                     Σ_i w_i z_i >= f Σ_i w_i
                     x binary, z_i in {0, 1}
 
-A (M × N) in [0, 1] as in `vpp_core.cover`, w (M,) >= 0 (face areas, mm²). Row i counts as
+A (M × N) in [0, 1] as in `vpp_core.cover.problem`, w (M,) >= 0 (face areas, mm²). Row i counts as
 satisfied only when its whole demand is met (coverage >= 1 - COVER_TOL), so a row covered
 halfway by partial coefficients earns nothing. The model stays exact after:
 
@@ -19,7 +19,7 @@ halfway by partial coefficients earns nothing. The model stays exact after:
 The LP relaxation gives a bound (HiGHS's dual simplex in a thread, until the deadline; the
 bound is recomputed from its clipped row duals as a Lagrangian: `lpbound.row_lagrangian`).
 When it meets the greedy start's cost within LP_HEAD_START_S, that is the answer. Otherwise
-HiGHS solves the MIP from the greedy start in its child process (vpp_core.mip) while the LP
+HiGHS solves the MIP from the greedy start in its child process (vpp_core.cover.mip) while the LP
 goes on beside it (HiGHS releases the GIL); the bound is the larger of the two. So a model
 too big for the MIP's root in time still gets its LP bound (plate_holes on 1 mm² elements at
 30 s: 6 for an 8-view cover, where the MIP alone gave 0). The status is "optimal" only when
@@ -36,7 +36,9 @@ import highspy
 import numpy as np
 import scipy.sparse as sp
 
-from vpp_core.cover import (
+from vpp_core.cover.lpbound import Relaxation
+from vpp_core.cover.mip import GRACE_S, TIMED_OUT, solve_mip, warm
+from vpp_core.cover.problem import (
     BUILD_TOL,
     COVER_TOL,
     SparseLike,
@@ -45,11 +47,9 @@ from vpp_core.cover import (
     coverage,
     integral_costs,
 )
+from vpp_core.cover.reduce import row_groups, undominated_columns
+from vpp_core.cover.setcover import CoverResult, closes_gap, solve_cover
 from vpp_core.errors import SolverError
-from vpp_core.lpbound import Relaxation
-from vpp_core.mip import GRACE_S, TIMED_OUT, solve_mip, warm
-from vpp_core.reduce import row_groups, undominated_columns
-from vpp_core.setcover import CoverResult, closes_gap, solve_cover
 
 LP_HEAD_START_S = 0.5
 """The LP runs alone this long (at most) before the MIP starts beside it."""

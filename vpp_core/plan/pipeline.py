@@ -9,10 +9,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vpp_core.candidates import GeneratorSettings, generate
-from vpp_core.density import CoverModel, cover_model
-from vpp_core.diagnostics import diagnose
-from vpp_core.document import (
+from vpp_core.camera.pose import Viewpoints, make_viewpoints
+from vpp_core.candidates.generator import GeneratorSettings, generate
+from vpp_core.cover.density import CoverModel, cover_model
+from vpp_core.cover.partial import PartialCover, solve_partial
+from vpp_core.errors import LimitError
+from vpp_core.mesh.part import Part
+from vpp_core.plan.diagnostics import diagnose
+from vpp_core.plan.document import (
     CandidateGenerator,
     CandidateInfo,
     CandidateOut,
@@ -30,14 +34,10 @@ from vpp_core.document import (
     ViewpointIn,
     ViewpointOut,
 )
-from vpp_core.errors import LimitError
-from vpp_core.mesh import Part
-from vpp_core.metrics import evaluate
-from vpp_core.partial import PartialCover, solve_partial
-from vpp_core.pose import Viewpoints, make_viewpoints
-from vpp_core.rays import RayBackend
-from vpp_core.raytrace import Trace, make_backend, trace_counts
-from vpp_core.tour import path_length, visiting_order
+from vpp_core.plan.metrics import evaluate
+from vpp_core.plan.tour import path_length, visiting_order
+from vpp_core.trace.rays import RayBackend
+from vpp_core.trace.raytrace import Trace, make_backend, trace_counts
 
 Progress = Callable[[str, int, int], None]
 """progress(stage, done, total): called as stages start and as viewpoints are traced."""

@@ -15,9 +15,12 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, Field
 
-from vpp_core.candidates import planning_mesh
-from vpp_core.density import CoverModel, Formulation, cover_model
-from vpp_core.document import (
+from vpp_core.candidates.generator import planning_mesh
+from vpp_core.cover.density import CoverModel, Formulation, cover_model
+from vpp_core.cover.partial import PartialCover
+from vpp_core.errors import VppError
+from vpp_core.mesh.part import Part, part_from_arrays
+from vpp_core.plan.document import (
     CandidateGenerator,
     MeshInfo,
     PlanDocument,
@@ -25,11 +28,8 @@ from vpp_core.document import (
     Timings,
     ViewpointOut,
 )
-from vpp_core.errors import VppError
-from vpp_core.mesh import Part, part_from_arrays
-from vpp_core.metrics import Histogram, evaluate
-from vpp_core.partial import PartialCover
-from vpp_core.plan import (
+from vpp_core.plan.metrics import Histogram, evaluate
+from vpp_core.plan.pipeline import (
     Limits,
     candidates_for,
     check_limits,
@@ -38,7 +38,7 @@ from vpp_core.plan import (
     mesh_info,
     solve,
 )
-from vpp_core.raytrace import Trace, make_backend, trace_counts
+from vpp_core.trace.raytrace import Trace, make_backend, trace_counts
 
 DEFAULT_RESOLUTIONS = [0.1, 0.12, 0.14, 0.16, 0.18, 0.2, 0.25, 0.3, 0.4, 0.5]
 """Target resolutions (mm) of a resolution sweep when none are given."""

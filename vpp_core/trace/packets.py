@@ -7,7 +7,7 @@ system's Embree 3 where installed (Debian/Ubuntu `libembree3-3`), else the Embre
 embreex wheel ships: Embree 4.4 ignores the coherent flag and traces packets no faster than
 single rays, Embree 3's coherent traversal is 3-4x faster on pixel tiles (docs/raytrace.md).
 
-The rays are bit for bit those of `vpp_core.embree.block_directions` (float32 (x, y, 1) turned
+The rays are bit for bit those of `vpp_core.trace.embree.block_directions` (float32 (x, y, 1) turned
 to world), so the face hit through each pixel is Embree's answer (tests/test_raster.py). The
 structures follow Embree's public ABI (rtcore_ray.h, rtcore_scene.h, rtcore_common.h, alike
 in 3 and 4): RTCRayHit16 is 12 ray fields then 7 hit fields (+ instance ids) of 16 lanes each,
@@ -30,9 +30,9 @@ import numpy as np
 
 from vpp_core.errors import VppError
 from vpp_core.jit import inline, kernel
-from vpp_core.mesh import Part
-from vpp_core.pixels import Triple, row_direction, window_of
-from vpp_core.rays import Block, Hits, PixelHits
+from vpp_core.mesh.part import Part
+from vpp_core.trace.pixels import Triple, row_direction, window_of
+from vpp_core.trace.rays import Block, Hits, PixelHits
 
 # enum values shared by Embree 3 and 4 (rtcore_common.h, rtcore_geometry.h, rtcore_scene.h)
 _GEOMETRY_TRIANGLE = 0

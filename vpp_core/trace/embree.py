@@ -6,8 +6,8 @@ import math
 
 import numpy as np
 
-from vpp_core.mesh import Part
-from vpp_core.rays import Block, Hits, PixelHits, RayBackend
+from vpp_core.mesh.part import Part
+from vpp_core.trace.rays import Block, Hits, PixelHits, RayBackend
 
 CHUNK_RAYS = 1 << 18
 """Rays per task: small enough for cache and memory, big enough to amortise Python."""

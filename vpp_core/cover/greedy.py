@@ -7,7 +7,7 @@ import heapq
 import numpy as np
 import scipy.sparse as sp
 
-from vpp_core.cover import (
+from vpp_core.cover.problem import (
     BUILD_TOL,
     COVER_TOL,
     SparseLike,

@@ -1,4 +1,4 @@
-"""Outward normals for closed shells; see vpp_core.mesh for the rules."""
+"""Outward normals for closed shells; see vpp_core.mesh.part for the rules."""
 
 from __future__ import annotations
 

@@ -1,11 +1,12 @@
-"""The planning mesh of a file: loaded (vpp_core.mesh), remeshed isotropically if asked
-(vpp_core.remesh), split into area elements if asked (vpp_core.refine), within the face limit."""
+"""The planning mesh of a file: loaded (vpp_core.mesh.part), remeshed isotropically if asked
+(vpp_core.mesh.remesh), split into area elements if asked (vpp_core.mesh.refine), within the
+face limit."""
 
 from __future__ import annotations
 
-from vpp_core.mesh import DEFAULT_MAX_FACES, Part, load_mesh
-from vpp_core.refine import refine
-from vpp_core.remesh import remesh
+from vpp_core.mesh.part import DEFAULT_MAX_FACES, Part, load_mesh
+from vpp_core.mesh.refine import refine
+from vpp_core.mesh.remesh import remesh
 
 
 def load_part(

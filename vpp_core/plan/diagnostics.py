@@ -16,7 +16,7 @@
   footprints) that the plan counts as seen while its rays land on less than half of their
   area, estimated from each ray's footprint at the face centre. A face counts as seen when one
   ray lands on it (SPEC §3), so a long CAD facet on a hole wall is "seen" when a view grazes
-  its rim; `--max-face-area` splits such faces into elements (vpp_core.refine).
+  its rim; `--max-face-area` splits such faces into elements (vpp_core.mesh.refine).
 """
 
 from __future__ import annotations
@@ -27,11 +27,11 @@ import numpy as np
 import scipy.sparse as sp
 from pydantic import BaseModel
 
-from vpp_core.cover import COVER_TOL, coverage
-from vpp_core.mesh import Part
-from vpp_core.pose import Viewpoints
-from vpp_core.rays import RayBackend
-from vpp_core.sensor import Sensor
+from vpp_core.camera.pose import Viewpoints
+from vpp_core.camera.sensor import Sensor
+from vpp_core.cover.problem import COVER_TOL, coverage
+from vpp_core.mesh.part import Part
+from vpp_core.trace.rays import RayBackend
 
 ESCAPE_DIRECTIONS = 64
 """Rays per side of a face in the enclosure test (Fibonacci hemisphere)."""

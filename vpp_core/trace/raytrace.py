@@ -1,7 +1,7 @@
 """The ray-count matrix R: every view's pixel rays traced by a ray backend, counted per face.
 
 Only the pixels inside the image of the part's hull are traced (the rest cannot hit); each
-view is split into blocks of rows as its backend likes them (`vpp_core.rays`), the blocks run
+view is split into blocks of rows as its backend likes them (`vpp_core.trace.rays`), the blocks run
 on the process's thread pool (started once; a forked child starts its own), and a view's
 column of R is reduced as soon as its last block is in.
 """
@@ -22,14 +22,14 @@ from weakref import WeakKeyDictionary
 import numpy as np
 import scipy.sparse as sp
 
-from vpp_core.embree import EmbreeBackend
+from vpp_core.camera.pose import Viewpoints
+from vpp_core.camera.sensor import Sensor
 from vpp_core.errors import VppError
-from vpp_core.mesh import Part
-from vpp_core.packets import PacketBackend
-from vpp_core.pose import Viewpoints
-from vpp_core.raster import RasterBackend
-from vpp_core.rays import DEFAULT_BACKEND, BackendName, Block, Hits, RayBackend
-from vpp_core.sensor import Sensor
+from vpp_core.mesh.part import Part
+from vpp_core.trace.embree import EmbreeBackend
+from vpp_core.trace.packets import PacketBackend
+from vpp_core.trace.raster import RasterBackend
+from vpp_core.trace.rays import DEFAULT_BACKEND, BackendName, Block, Hits, RayBackend
 
 Progress = Callable[[int], None]
 """Called with the number of viewpoints just finished."""

@@ -25,12 +25,12 @@ import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
+from vpp_core.camera.pose import Viewpoints, make_viewpoints
+from vpp_core.camera.sensor import Sensor
 from vpp_core.errors import VppError
-from vpp_core.mesh import Part
-from vpp_core.pose import Viewpoints, make_viewpoints
-from vpp_core.rays import RayBackend
-from vpp_core.raytrace import make_backend
-from vpp_core.sensor import Sensor
+from vpp_core.mesh.part import Part
+from vpp_core.trace.rays import RayBackend
+from vpp_core.trace.raytrace import make_backend
 
 OVERSAMPLE = 8
 """Raw samples drawn per wanted candidate before thinning."""

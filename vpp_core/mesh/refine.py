@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from vpp_core.errors import LimitError, MeshError
-from vpp_core.mesh import DEFAULT_MAX_FACES, Part, part_from_children
+from vpp_core.mesh.part import DEFAULT_MAX_FACES, Part, part_from_children
 
 
 def generations(areas: np.ndarray, max_area_mm2: float) -> np.ndarray:

@@ -12,7 +12,7 @@ import math
 import numpy as np
 
 from vpp_core.errors import LimitError, MeshError, VppError
-from vpp_core.mesh import DEFAULT_MAX_FACES, Part, part_from_arrays
+from vpp_core.mesh.part import DEFAULT_MAX_FACES, Part, part_from_arrays
 
 FEATURE_DEG = 30.0
 """Edges sharper than this dihedral angle (degrees) are kept as features."""

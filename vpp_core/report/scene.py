@@ -20,11 +20,11 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
-from vpp_core.density import density_matrix, meets
-from vpp_core.document import PlanDocument
+from vpp_core.cover.density import density_matrix, meets
 from vpp_core.errors import VppError
-from vpp_core.mesh import Part
-from vpp_core.metrics import resolution_mm, seen
+from vpp_core.mesh.part import Part
+from vpp_core.plan.document import PlanDocument
+from vpp_core.plan.metrics import resolution_mm, seen
 
 MAGIC = b"VPPS"
 ALIGN = 8

@@ -1,0 +1,6 @@
+"""Mesh stage: file bytes → a validated, canonical triangle `Part` in mm (SPEC §1).
+
+meshio (format parsing), orientation (outward normals), part (the Part and its checks),
+remesh (isotropic remesh, pymeshlab), refine (area elements), tessellate (the planning mesh
+of a file). Imports: the shared leaves only (vpp_core.errors).
+"""

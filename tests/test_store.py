@@ -17,7 +17,8 @@ from tests.s3server import free_ports
 from vpp_core.errors import NotFoundError, UnavailableError
 from worker.s3store import S3Store
 from worker.settings import get_settings
-from worker.store import FileStore, MemoryStore, Store, check_key, open_store
+from worker.store import FileStore, MemoryStore, Store, open_store
+from worker.storekey import check_key
 
 BAD_KEYS = ["../x", "a/../b", "/abs", "a//b", "", "x/", ".hidden", "a b", "a\\b"]
 MB = bytes(range(256)) * 4096

@@ -20,7 +20,7 @@ from obstore.exceptions import BaseError as ObstoreError
 from obstore.store import S3Store as _ObS3
 
 from vpp_core.errors import NotFoundError, UnavailableError
-from worker.store import check_key
+from worker.storekey import check_key
 
 if TYPE_CHECKING:
     from obstore.store import ClientConfig, RetryConfig, S3Config

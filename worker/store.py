@@ -9,15 +9,14 @@ see `worker.s3store`) and memory (`memory://`, for tests).
 from __future__ import annotations
 
 import os
-import re
 import tempfile
 from pathlib import Path
 from typing import Protocol
 from urllib.parse import urlparse
 
 from vpp_core.errors import NotFoundError, UnavailableError
-
-_KEY = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*(/[A-Za-z0-9][A-Za-z0-9._-]*)*$")
+from worker.s3store import S3Store
+from worker.storekey import check_key
 
 
 class Store(Protocol):
@@ -40,13 +39,6 @@ class Store(Protocol):
     def ping(self) -> None:
         """Raise UnavailableError when the store cannot be reached or written."""
         ...
-
-
-def check_key(key: str) -> str:
-    """The key itself, or ValueError when it could escape the store (.., absolute, odd chars)."""
-    if not _KEY.match(key) or ".." in key.split("/"):
-        raise ValueError(f"bad store key {key!r}")
-    return key
 
 
 class FileStore:
@@ -127,8 +119,6 @@ def open_store(url: str) -> Store:
     if parsed.scheme in ("", "file"):
         return FileStore(parsed.path if parsed.scheme else url)
     if parsed.scheme == "s3":
-        from worker.s3store import S3Store
-
         return S3Store(url)
     if parsed.scheme == "memory":
         return MemoryStore()

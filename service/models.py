@@ -7,6 +7,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from service.jobmodels import Callback, Delivery
 from vpp_core.plan.document import PlanRequest
 from vpp_core.report.studies import DEFAULT_RATIOS, DEFAULT_RESOLUTIONS
 
@@ -30,6 +31,9 @@ class PlanSubmit(PlanRequest):
     model_config = ConfigDict(extra="forbid")
 
     mesh_id: str = Field(pattern=r"^[0-9a-f]{64}$")
+    callback: Callback | None = None
+    """Where to POST the job's terminal event (not part of the plan: identical requests with
+    other callbacks share the job, and each callback is told)."""
 
 
 class StudySubmit(PlanRequest):
@@ -40,6 +44,7 @@ class StudySubmit(PlanRequest):
     model_config = ConfigDict(extra="forbid")
 
     mesh_id: str = Field(pattern=r"^[0-9a-f]{64}$")
+    callback: Callback | None = None
     kind: Literal["resolution", "decimation"]
     resolutions: list[float] = Field(
         default=DEFAULT_RESOLUTIONS,
@@ -108,6 +113,9 @@ class JobOut(BaseModel):
     created_at: datetime | None = None
     started_at: datetime | None = None
     ended_at: datetime | None = None
+    kind: Literal["plan", "study", "point-cloud"] | None = None
+    deliveries: list[Delivery] = []
+    """The attempts to deliver the job's webhooks (its `callback`), oldest first."""
 
 
 class Problem(BaseModel):

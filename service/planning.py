@@ -12,6 +12,7 @@ from typing import BinaryIO
 from redis import Redis
 from rq import Queue
 
+from service.jobmodels import Delivery
 from service.models import JobOut, MeshSummary, PlanSubmit, RelatedPlan, RelatedPlans, StudySubmit
 from vpp_core.errors import NotFoundError, TooLargeError, VppError
 from vpp_core.mesh.tessellate import load_part
@@ -20,6 +21,7 @@ from vpp_core.plan.pipeline import check_request
 from vpp_core.report.scene import geometry_scene, plan_scene
 from vpp_core.report.studies import check_study
 from worker import artifacts as art
+from worker import joblist, webhooks
 from worker import queue as jobs
 from worker.settings import Settings
 from worker.store import Store
@@ -108,7 +110,7 @@ def needs_job(conn: Redis, store: Store, job_id: str) -> bool:
 def submit_plan(store: Store, queue: Queue, settings: Settings, body: PlanSubmit) -> str:
     """Check the request, store it and enqueue its job unless the plan exists; the plan id."""
     check_request(body, settings.limits())  # LimitError, ViewpointError now, before any copy
-    request = PlanRequest.model_validate(body.model_dump(exclude={"mesh_id"}))
+    request = PlanRequest.model_validate(body.model_dump(exclude={"mesh_id", "callback"}))
     if not store.exists(art.mesh_key(body.mesh_id)):
         raise VppError(f"mesh_id {body.mesh_id}: no such mesh; upload it with POST /v1/meshes")
     plan = art.plan_id(body.mesh_id, request)
@@ -150,6 +152,10 @@ def job_out(conn: Redis, store: Store, job_id: str) -> JobOut:
     """The job resource of a plan, study or point cloud job."""
     state = jobs.state(conn, store, content_id(job_id, "job"))
     out = JobOut.model_validate(asdict(state))
+    listed = joblist.entry(conn, job_id)
+    out.kind = listed.kind if listed else None  # type: ignore[assignment]
+    out.created_at = out.created_at or (listed.created_at if listed else None)
+    out.deliveries = [Delivery.model_validate(a) for a in webhooks.attempts(conn, job_id)]
     if state.status == "succeeded":
         out.result_url = result_url(store, job_id)
     return out

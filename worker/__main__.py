@@ -24,6 +24,7 @@ from rq import Queue, Worker  # noqa: E402
 from rq.job import Job  # noqa: E402
 
 import worker.jobs  # noqa: E402,F401
+from worker import webhooks  # noqa: E402
 from worker.jobs import connect  # noqa: E402
 from worker.pool import follow_parent  # noqa: E402
 from worker.settings import Settings, get_settings  # noqa: E402
@@ -54,9 +55,10 @@ class VppWorker(Worker):
 
 
 def make_worker(conn: Redis, settings: Settings, name: str | None) -> VppWorker:
-    """One worker on the plan queue, beating and sweeping as the settings say."""
+    """One worker on the webhooks queue (first: deliveries are short) and the plan queue,
+    beating and sweeping as the settings say."""
     worker = VppWorker(
-        [Queue(settings.queue, connection=conn)],
+        [Queue(q, connection=conn) for q in (webhooks.queue_name(settings.queue), settings.queue)],
         connection=conn,
         name=name,
         maintenance_interval=settings.sweep_s,
@@ -87,7 +89,7 @@ def main(argv: list[str] | None = None) -> None:
         name = args.name and (f"{args.name}.{attempt}" if attempt else args.name)
         worker = make_worker(conn, settings, name)
         try:
-            worker.work(burst=args.burst, with_scheduler=False)
+            worker.work(burst=args.burst, with_scheduler=True)  # webhook retries
             if args.burst or worker.stopping:
                 return
             log.warning("worker %s stopped on an error; starting again", worker.name)

@@ -20,7 +20,7 @@ from datetime import datetime
 from typing import Any, Literal
 
 from redis import Redis
-from rq import Queue, Retry
+from rq import Callback, Queue, Retry
 from rq.command import send_stop_job_command
 from rq.exceptions import InvalidJobOperation, NoSuchJobError
 from rq.job import Job, JobStatus
@@ -28,6 +28,7 @@ from rq.registry import StartedJobRegistry
 
 from vpp_core.errors import NotFoundError
 from worker import artifacts as art
+from worker import webhooks
 from worker.faults import delete_job, failure_reason
 from worker.jobs import error_record, plan_job
 from worker.settings import Settings
@@ -112,6 +113,9 @@ def submit(
             failure_ttl=settings.failure_ttl_s,
             description=f"{func.__name__.removesuffix('_job')} {plan[:12]}",
             retry=Retry(max=settings.job_retries) if settings.job_retries else None,
+            on_success=Callback(webhooks.job_ended),  # enqueue its webhooks, nothing more
+            on_failure=Callback(webhooks.job_ended),
+            on_stopped=Callback(webhooks.job_ended),
         )
     finally:
         conn.delete(lock)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from functools import lru_cache
+from typing import Literal
 
 from pydantic import Field, SecretStr, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
@@ -81,6 +82,27 @@ class Settings(BaseSettings):
     """How long a POST with an `Idempotency-Key` holds its key while it is processed (s): retries
     meanwhile get 409. Longer than the slowest request (a big upload); a request whose process
     died frees its key when this expires."""
+    admin_api_keys: SecretStr = SecretStr("")
+    """Those of `api_keys` that list every key's jobs (`GET /v1/jobs`), comma-separated; any
+    other key lists only the jobs it submitted. Never logged."""
+    callback_allow_private: bool = False
+    """Allow webhook callback URLs whose host is a loopback, link-local or private address (a
+    receiver on the factory network); off, they are refused (SSRF)."""
+    callback_retry_s: int = Field(10, ge=1)
+    """Wait before the first retry of an undelivered webhook (s); each next wait doubles."""
+    callback_max_age_s: int = Field(86_400, ge=1)
+    """How long an undelivered webhook is retried (s): the retry waits add up to this."""
+    rate_limit: int = Field(60, ge=1)
+    """Job submissions (plans, studies, point clouds) one API key may make per `rate_window_s`
+    (per client address when the API is open); more get 429 with Retry-After."""
+    rate_window_s: int = Field(60, ge=1)
+    """The window of `rate_limit` (s)."""
+    max_active_jobs: int = Field(10, ge=1)
+    """Queued and running jobs one API key (or address) may have at once; a submission past it
+    gets 429 with Retry-After, so one client cannot fill the queue and starve the others."""
+    log_format: Literal["text", "json"] | None = None
+    """Log lines as `json` (one object per line: time, level, logger, message, request and job
+    ids) or `text`; unset: text on a terminal, JSON otherwise."""
 
     @field_validator("api_keys")
     @classmethod
@@ -94,6 +116,10 @@ class Settings(BaseSettings):
     def api_key_list(self) -> list[str]:
         """The configured API keys (none: the API is open)."""
         return _split_keys(self.api_keys.get_secret_value())
+
+    def admin_key_list(self) -> list[str]:
+        """The admin API keys (they list every key's jobs)."""
+        return _split_keys(self.admin_api_keys.get_secret_value())
 
     def limits(self) -> Limits:
         """The core's view of the limits."""

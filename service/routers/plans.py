@@ -5,10 +5,11 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Annotated, Any
 
-from fastapi import APIRouter, Header, Response
+from fastapi import APIRouter, Header, Request, Response
 
-from service import planning
+from service import planning, submissions
 from service.deps import QueueDep, SettingsDep, StoreDep
+from service.jobmodels import CloudSubmit
 from service.models import JobAccepted, PlanSubmit, Problem
 from vpp_core.plan.document import PlanDocument
 from vpp_core.report.pointcloud import CloudStats
@@ -27,13 +28,16 @@ IMMUTABLE = "public, max-age=31536000, immutable"
 )
 def submit_plan(
     body: PlanSubmit,
+    request: Request,
     response: Response,
     store: StoreDep,
     queue: QueueDep,
     settings: SettingsDep,
 ) -> JobAccepted:
     """Plan a mesh; identical requests share one job and one result (the plan id is their hash)."""
+    submissions.check_callback(request, body.callback)
     plan = planning.submit_plan(store, queue, settings, body)
+    submissions.register(request, plan, "plan", body.mesh_id, body.callback)
     return accepted(plan, response, store, queue, settings)
 
 
@@ -101,10 +105,20 @@ def get_plan_plot(plan_id: str, name: str, store: StoreDep) -> Response:
     responses={404: {"model": Problem}},
 )
 def submit_point_cloud(
-    plan_id: str, response: Response, store: StoreDep, queue: QueueDep, settings: SettingsDep
+    plan_id: str,
+    request: Request,
+    response: Response,
+    store: StoreDep,
+    queue: QueueDep,
+    settings: SettingsDep,
+    body: CloudSubmit | None = None,
 ) -> JobAccepted:
     """Simulate the plan's point cloud (one point per valid ray of its viewpoints) as a job."""
+    callback = body.callback if body else None
+    submissions.check_callback(request, callback)
     cloud = planning.submit_cloud(store, queue, settings, plan_id)
+    mesh_id, _ = art.get_request(store, plan_id)
+    submissions.register(request, cloud, "point-cloud", mesh_id, callback)
     return accepted(cloud, response, store, queue, settings)
 
 

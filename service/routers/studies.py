@@ -4,9 +4,9 @@ from __future__ import annotations
 
 from typing import Any
 
-from fastapi import APIRouter, Response
+from fastapi import APIRouter, Request, Response
 
-from service import planning
+from service import planning, submissions
 from service.deps import QueueDep, SettingsDep, StoreDep
 from service.models import JobAccepted, Problem, StudyPlots, StudySubmit
 from service.routers.plans import IMMUTABLE, accepted
@@ -22,10 +22,17 @@ PNG: dict[int | str, dict[str, Any]] = {
 
 @router.post("", status_code=202, response_model=JobAccepted, responses={422: {"model": Problem}})
 def submit_study(
-    body: StudySubmit, response: Response, store: StoreDep, queue: QueueDep, settings: SettingsDep
+    body: StudySubmit,
+    request: Request,
+    response: Response,
+    store: StoreDep,
+    queue: QueueDep,
+    settings: SettingsDep,
 ) -> JobAccepted:
     """Run a resolution sweep or a decimation study; identical requests share one job."""
+    submissions.check_callback(request, body.callback)
     study = planning.submit_study(store, queue, settings, body)
+    submissions.register(request, study, "study", body.mesh_id, body.callback)
     return accepted(study, response, store, queue, settings)
 
 

@@ -9,7 +9,7 @@ from fastapi import Request
 from service.callers import caller
 from service.jobmodels import Callback
 from vpp_core.errors import NotFoundError
-from worker import joblist, webhooks
+from worker import joblist, metrics, webhooks
 from worker import queue as jobs
 from worker.settings import Settings
 
@@ -32,6 +32,7 @@ def register(
     state = request.app.state
     who = caller(request)
     joblist.record(state.redis, state.settings, job_id, kind, mesh_id, who.owner)
+    metrics.inc(state.redis, "jobs_submitted_total", {"kind": kind})
     if callback is None:
         return
     webhooks.register(state.redis, state.settings, job_id, str(callback.url), callback.secret)

@@ -28,7 +28,7 @@ from rq.registry import StartedJobRegistry
 
 from vpp_core.errors import NotFoundError
 from worker import artifacts as art
-from worker import webhooks
+from worker import jobhooks
 from worker.faults import delete_job, failure_reason
 from worker.jobs import error_record, plan_job
 from worker.settings import Settings
@@ -113,9 +113,9 @@ def submit(
             failure_ttl=settings.failure_ttl_s,
             description=f"{func.__name__.removesuffix('_job')} {plan[:12]}",
             retry=Retry(max=settings.job_retries) if settings.job_retries else None,
-            on_success=Callback(webhooks.job_ended),  # enqueue its webhooks, nothing more
-            on_failure=Callback(webhooks.job_ended),
-            on_stopped=Callback(webhooks.job_ended),
+            on_success=Callback(jobhooks.job_succeeded),  # metrics, webhooks: nothing more
+            on_failure=Callback(jobhooks.job_failed),
+            on_stopped=Callback(jobhooks.job_stopped),
         )
     finally:
         conn.delete(lock)

@@ -2,8 +2,8 @@
 
 A submission with `callback: {url, secret}` registers it on the job (`register`, a Redis list
 that expires with the job's records). When the job reaches a terminal status (RQ's success,
-failure and stopped callbacks; the API's cancel; a submission that finds the job done) `notify`
-enqueues `dispatch` on the webhooks queue (`<queue>-webhooks`, which the workers take from
+failure and stopped callbacks in worker.jobhooks; the API's cancel; a submission that finds the
+job done) `notify` enqueues `dispatch` on the webhooks queue (`<queue>-webhooks`, which the workers take from
 first): nothing of the delivery runs in the job itself. `dispatch` waits out RQ's bookkeeping,
 and once the job is terminal takes the callbacks (each registered one is told once) and enqueues
 one `deliver` per callback, retried by RQ with exponential backoff (`backoff_s`) for up to
@@ -124,11 +124,6 @@ def notify(conn: Redis, plan_queue: str, job_id: str) -> None:
         Queue(queue_name(plan_queue), connection=conn).enqueue_call(
             dispatch, args=(job_id,), description=f"webhooks of {job_id[:12]}", result_ttl=600
         )
-
-
-def job_ended(job: Any, connection: Redis, *args: Any) -> None:
-    """RQ's on_success, on_failure and on_stopped callback of plan, study and cloud jobs."""
-    notify(connection, job.origin, job.id)
 
 
 def dispatch(job_id: str) -> int:

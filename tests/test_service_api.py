@@ -210,7 +210,7 @@ def test_committed_openapi_matches_the_app() -> None:
         "submit_plan", "get_job", "cancel_job", "get_plan", "get_plan_plot", "get_plan_scene",
         "get_related_plans", "submit_point_cloud", "get_point_cloud", "get_point_cloud_stats",
         "get_point_cloud_plot", "submit_study", "get_study", "get_study_csv",
-        "list_study_plots", "get_study_plot",
+        "list_study_plots", "get_study_plot", "list_jobs", "job_events", "get_metrics",
     }  # fmt: skip
 
 

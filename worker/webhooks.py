@@ -3,14 +3,14 @@
 A submission with `callback: {url, secret}` registers it on the job (`register`, a Redis list
 that expires with the job's records). When the job reaches a terminal status (RQ's success,
 failure and stopped callbacks in worker.jobhooks; the API's cancel; a submission that finds the
-job done) `notify` enqueues `dispatch` on the webhooks queue (`<queue>-webhooks`, which the workers take from
-first): nothing of the delivery runs in the job itself. `dispatch` waits out RQ's bookkeeping,
-and once the job is terminal takes the callbacks (each registered one is told once) and enqueues
-one `deliver` per callback, retried by RQ with exponential backoff (`backoff_s`) for up to
-`callback_max_age_s`. Every attempt is recorded on the job (`attempts`).
+job done) `notify` enqueues `dispatch` on the webhooks queue (`<queue>-webhooks`, which the
+workers take from first): nothing of the delivery runs in the job itself. `dispatch` waits out
+RQ's bookkeeping, and once the job is terminal takes the callbacks (each registered one is told
+once) and enqueues one `deliver` per callback, retried by RQ with exponential backoff
+(`backoff_s`) for up to `callback_max_age_s`. Every attempt is recorded on the job (`attempts`).
 
-Signing (standardwebhooks.com): headers `webhook-id`, `webhook-timestamp` (Unix s) and
-`webhook-signature: v1,<base64 HMAC-SHA256(key, "<id>.<timestamp>.<body>")>`, the key being the
+Signing (standardwebhooks.com): headers `webhook-id`, `webhook-timestamp` (Unix s) and `webhook-
+signature: v1,<base64 HMAC-SHA256(key, "<id>.<timestamp>.<body>")>`, the key being the
 base64-decoded secret (an optional `whsec_` prefix dropped). Hand-written (a dozen lines, no
 extra dependency); the tests check it with the `standardwebhooks` package's verifier.
 

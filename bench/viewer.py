@@ -31,7 +31,10 @@ import sys
 import tempfile
 import threading
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
@@ -44,6 +47,7 @@ def main() -> None:
     ap.add_argument("mesh", nargs="?")
     ap.add_argument("--units", default="mm")
     ap.add_argument("--candidates", type=int, default=500)
+    ap.add_argument("--tilt", type=float, default=0.0)
     ap.add_argument("--resolution", type=float, default=0.18)
     ap.add_argument("--formulation", choices=["density", "visibility"], default="density")
     ap.add_argument("--repeat", type=int, default=3)
@@ -51,24 +55,33 @@ def main() -> None:
     ap.add_argument("--fit-part", action="store_true", help="screenshot framing the part only")
     ap.add_argument("--redis-url", default="redis://127.0.0.1:6379/11")
     args = ap.parse_args()
+    with served_plan(args) as (url, plan, doc):
+        run(args, url, plan, doc)
+
+
+@contextmanager
+def served_plan(args: argparse.Namespace) -> Iterator[tuple[str, str, dict[str, Any]]]:
+    """(base URL, plan id, plan document) of args.mesh planned by the API on loopback with one
+    worker, a temporary store and args.redis_url (flushed before and after); args: mesh, units,
+    candidates, tilt, resolution (mm), formulation."""
     with tempfile.TemporaryDirectory() as store:
         os.environ.update(VPP_REDIS_URL=args.redis_url, VPP_STORE_URL=store, VPP_QUEUE="vpp-bench")
         from redis import Redis  # noqa: TID251
 
         Redis.from_url(args.redis_url).flushdb()
         try:
-            run(args)
+            with _serving() as url:
+                yield url, *_plan(url, args)
         finally:
             Redis.from_url(args.redis_url).flushdb()
 
 
-def run(args: argparse.Namespace) -> None:
-    import httpx
+@contextmanager
+def _serving() -> Iterator[str]:
+    """The API served by uvicorn on a free loopback port, with one RQ worker: its base URL."""
     import uvicorn
-    from playwright.sync_api import sync_playwright
 
     from service.app import create_app
-    from vpp_core.samples import sample_stl
     from worker.pool import start_workers, stop_workers
     from worker.settings import Settings
 
@@ -79,37 +92,57 @@ def run(args: argparse.Namespace) -> None:
     threading.Thread(target=server.run, daemon=True).start()
     while not server.started:
         time.sleep(0.05)
-    url = f"http://127.0.0.1:{port}"
-    procs = start_workers(args.redis_url, 1, threads=None, prefix="bench", log=sys.stderr.buffer)
+    procs = start_workers(os.environ["VPP_REDIS_URL"], 1, prefix="bench", log=sys.stderr.buffer)
     try:
-        client = httpx.Client(base_url=url, timeout=120)
-        name = Path(args.mesh).name if args.mesh else "bushing.stl"
-        data = Path(args.mesh).read_bytes() if args.mesh else sample_stl()
-        r = client.post("/v1/meshes", files={"file": (name, data)}, data={"units": args.units})
-        r.raise_for_status()
-        mesh = r.json()["id"]
-        target = {"resolution_mm": args.resolution, "formulation": args.formulation}
-        body = {"mesh_id": mesh, "candidates": {"count": args.candidates}, "target": target}
-        plan = client.post("/v1/plans", json=body).json()["id"]
-        t0 = time.perf_counter()
-        while client.get(f"/v1/jobs/{plan}").json()["status"] in ("queued", "running"):
-            time.sleep(0.5)
-        plan_s = time.perf_counter() - t0
-        doc = client.get(f"/v1/plans/{plan}").json()
-        scene = client.get(f"/v1/plans/{plan}/scene")  # gzip on the wire
-        sizes = {
-            "geometry_bytes": len(client.get(f"/v1/meshes/{mesh}/geometry").content),
-            "scene_bytes": len(scene.content),
-            "scene_wire_bytes": scene.num_bytes_downloaded,
-        }
-        with sync_playwright() as p:
-            browser = p.chromium.launch(executable_path="/usr/bin/chromium", args=FLAGS)
-            for rep in range(args.repeat):
-                measure(browser, url, plan, doc, sizes, plan_s, name, rep, args)
-            browser.close()
+        yield f"http://127.0.0.1:{port}"
     finally:
         stop_workers(procs, wait_s=5)
         server.should_exit = True
+
+
+def _plan(url: str, args: argparse.Namespace) -> tuple[str, dict[str, Any]]:
+    """Upload args.mesh, plan it and wait: (plan id, plan document with "plan_s" added)."""
+    import httpx
+
+    from vpp_core.samples import sample_stl
+
+    client = httpx.Client(base_url=url, timeout=120)
+    name = Path(args.mesh).name if args.mesh else "bushing.stl"
+    data = Path(args.mesh).read_bytes() if args.mesh else sample_stl()
+    r = client.post("/v1/meshes", files={"file": (name, data)}, data={"units": args.units})
+    r.raise_for_status()
+    target = {"resolution_mm": args.resolution, "formulation": args.formulation}
+    candidates = {"count": args.candidates, "tilt_deg": args.tilt}
+    body = {"mesh_id": r.json()["id"], "candidates": candidates, "target": target}
+    plan = client.post("/v1/plans", json=body).json()["id"]
+    t0 = time.perf_counter()
+    while client.get(f"/v1/jobs/{plan}").json()["status"] in ("queued", "running"):
+        time.sleep(0.5)
+    doc = client.get(f"/v1/plans/{plan}").json()
+    return plan, {**doc, "plan_s": time.perf_counter() - t0, "file_name": name}
+
+
+def run(args: argparse.Namespace, url: str, plan: str, doc: dict[str, Any]) -> None:
+    """Measure the bytes on the wire, then each repetition in a fresh browser context."""
+    import httpx
+    from playwright.sync_api import sync_playwright
+
+    client = httpx.Client(base_url=url, timeout=120)
+    gz = {"Accept-Encoding": "gzip"}
+    sizes = {}
+    for what, path in (
+        ("geometry", f"/v1/meshes/{doc['mesh']['id']}/geometry"),
+        ("scene", f"/v1/plans/{plan}/scene"),
+        ("bundle", "/static/viewer/viewer.js"),
+    ):
+        r = client.get(path, headers=gz)
+        sizes[f"{what}_bytes"] = len(r.content)
+        sizes[f"{what}_wire_bytes"] = r.num_bytes_downloaded
+    with sync_playwright() as p:
+        browser = p.chromium.launch(executable_path="/usr/bin/chromium", args=FLAGS)
+        for rep in range(args.repeat):
+            measure(browser, url, plan, doc, sizes, doc["plan_s"], doc["file_name"], rep, args)
+        browser.close()
 
 
 def measure(browser, url, plan, doc, sizes, plan_s, name, rep, args) -> None:  # type: ignore[no-untyped-def]

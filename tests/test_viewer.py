@@ -123,7 +123,7 @@ def test_the_page_draws_the_plan_and_a_clicked_camera_shows_its_pose(live, brows
     assert k_views >= 2
     assert page.js("window.vppViewer.cameraCount()") == k_views
     assert page.page.locator(".cam-label").count() == k_views
-    assert page.js("window.vppViewer.frustumSegments()") == 12 * k_views
+    assert page.js("window.vppViewer.frustumSegments()") == 8 * k_views  # a pyramid each
     summary = page.js("window.vppViewer.summary")
     assert summary["viewpoints"] == f"{k_views} of {len(doc['candidates'])} candidates"
     assert doc["solver"]["status"] in summary["solver"]
@@ -131,11 +131,11 @@ def test_the_page_draws_the_plan_and_a_clicked_camera_shows_its_pose(live, brows
     _, arrays = unpack(client.get(f"/v1/plans/{plan}/scene").content)
     counts = np.bincount(arrays["state"], minlength=5).tolist()
     assert page.js("window.vppViewer.stateCounts") == counts
-    assert page.page.locator("#legend").inner_text().count(" faces") >= 4
+    assert page.page.locator("#legend").inner_text().count("\u00a0faces") >= 4  # no line break
     # faces of the fixed states wear their legend swatch; met and unmet faces none of them
     colours = np.array(page.js("window.vppViewer.faceColours()")).reshape(-1, 3)
     swatches = page.js(
-        "[...document.querySelectorAll('#legend .swatch')]"
+        "[...document.querySelectorAll('#legend .state .swatch')]"
         ".map(e => getComputedStyle(e).backgroundColor.match(/\\d+/g).map(Number))"
     )
     assert len(swatches) == 3
@@ -145,7 +145,7 @@ def test_the_page_draws_the_plan_and_a_clicked_camera_shows_its_pose(live, brows
         assert not (colours[graded] == rgb).all(axis=1).any()
 
     # click a camera's pin in the canvas (labels hidden, so the 3D pick answers)
-    page.js("window.vppViewer.show('labels', false)")
+    page.js("window.vppViewer.show('labels', false); window.vppViewer.fit(true)")
     page.drawn()
     box = page.page.locator("#canvas").bounding_box()
     pins = [page.js("k => window.vppViewer.screenPosition(k)", k) for k in range(k_views)]
@@ -159,7 +159,7 @@ def test_the_page_draws_the_plan_and_a_clicked_camera_shows_its_pose(live, brows
         _numbers(page.page.locator("#cam-gaze").inner_text()), v["gaze"], atol=6e-4
     )
     n_seen = int(arrays["view_offsets"][k + 1] - arrays["view_offsets"][k])
-    assert page.page.locator("#cam-faces").inner_text().startswith(f"{n_seen} faces")
+    assert page.page.locator("#cam-faces").inner_text().startswith(f"{n_seen}\u00a0faces")
     matrix = np.array(_numbers(page.page.locator("#cam-matrix").inner_text())).reshape(4, 4)
     np.testing.assert_allclose(matrix, v["camera_to_world"], atol=6e-5)
 
@@ -184,7 +184,7 @@ def test_looking_through_a_camera_shows_what_a_ray_cast_sees(live, browser) -> N
         look = page.js("k => window.vppViewer.look(k)", k)
         page.js("window.vppViewer.show('frusta', false); window.vppViewer.show('tour', false)")
         page.js("window.vppViewer.show('labels', false); window.vppViewer.setShading(false)")
-        page.js("document.getElementById('frame').hidden = true")
+        page.js("for (const id of ['frame', 'through']) document.getElementById(id).hidden = true")
         page.drawn()
         image = page.canvas_rgb()
         h, w, _ = image.shape
@@ -222,8 +222,18 @@ def test_the_formulation_toggle_computes_and_shows_the_other_plan(live, browser)
     page = Page(browser, f"{url}/v1/plans/{plan}/view")
     related = {r["formulation"]: r for r in page.js("window.vppViewer.related")}
     assert related["density"]["id"] == plan and not related["visibility"]["available"]
+    page.js("window.vppViewer.look(0)")
     page.page.locator("#formulations button[data-formulation=visibility]").click()
     page.page.wait_for_function(f"window.vppViewer.plan === '{related['visibility']['id']}'")
+    # while it computes: nothing of the old plan is shown as the new one's
+    left = page.js(
+        "({doc: window.vppViewer.doc?.target.formulation ?? null,"
+        " active: document.querySelector('#formulations button.active').dataset.formulation,"
+        " frame: !document.getElementById('frame').hidden,"
+        " selected: window.vppViewer.selected()})"
+    )
+    assert left["doc"] in (None, "visibility") and left["active"] == "visibility", left
+    assert not left["frame"] and left["selected"] is None, left
     page.ready()
     other = client.get(f"/v1/plans/{related['visibility']['id']}").json()
     assert other["target"]["formulation"] == "visibility"
@@ -303,3 +313,126 @@ def _most_isolated(pins: list[Any], box: dict[str, float]) -> int:
     np.fill_diagonal(d, np.inf)
     score = np.where(inside, np.nanmin(d, axis=1), -1)
     return int(np.argmax(score))
+
+
+def _label_layout(page: Page) -> tuple[dict[str, list[float]], list[float], dict[str, float]]:
+    """(shown labels' boxes by camera, the part's projected box, the canvas box) in canvas px."""
+    page.drawn()
+    boxes = page.js("window.vppViewer.labelBoxes()")
+    return boxes, page.js("window.vppViewer.partBox()"), page.page.locator("#canvas").bounding_box()
+
+
+def _assert_legible(boxes: dict[str, list[float]], canvas: dict[str, float]) -> None:
+    """Every label inside the canvas, no two touching."""
+    for k, (x, y, w, h) in boxes.items():
+        assert x >= 0 and y >= 0 and x + w <= canvas["width"] and y + h <= canvas["height"], k
+    for (a, (ax, ay, aw, ah)), (b, (bx, by, bw, bh)) in itertools.combinations(boxes.items(), 2):
+        assert ax + aw <= bx or bx + bw <= ax or ay + ah <= by or by + bh <= ay, (a, b)
+
+
+def test_the_page_opens_on_the_part_with_every_number_legible(live, browser) -> None:
+    """The part fills a good share of the canvas; every camera's number is on screen, on the
+    part where it looks, and clear of the others; so after *fit all* and an orbit."""
+    client, url = live
+    _, plan, doc = planned(client)
+    page = Page(browser, f"{url}/v1/plans/{plan}/view")
+    boxes, part, canvas = _label_layout(page)
+    share = max((part[2] - part[0]) / canvas["width"], (part[3] - part[1]) / canvas["height"])
+    assert share > 0.6, share
+    assert part[0] >= 0 and part[1] >= 0 and part[2] <= canvas["width"], part
+    assert part[3] <= canvas["height"], part
+    assert sorted(map(int, boxes)) == list(range(len(doc["viewpoints"])))
+    _assert_legible(boxes, canvas)
+    page.page.locator("#fit").click()
+    boxes, _, _ = _label_layout(page)
+    assert len(boxes) == len(doc["viewpoints"])
+    _assert_legible(boxes, canvas)
+    page.js("window.vppViewer.orbit(7)")
+    _assert_legible(_label_layout(page)[0], canvas)
+    assert page.errors == []
+
+
+def test_looking_through_shows_that_camera_alone_and_clear_leaves_nothing_behind(
+    live, browser
+) -> None:
+    client, url = live
+    _, plan, doc = planned(client)
+    page = Page(browser, f"{url}/v1/plans/{plan}/view")
+    page.page.locator(".cam-label[data-k='1']").click()
+    page.page.locator("#look").click()
+    page.drawn()
+    assert page.page.locator("#frame").is_visible()
+    caption = page.page.locator("#through").inner_text()
+    assert f"viewpoint 2 of {len(doc['viewpoints'])}" in caption, caption
+    assert page.js("window.vppViewer.labelBoxes()") == {}  # no other camera's number
+    assert page.js("window.vppViewer.drawnCameras()") == {"frusta": False, "tour": False}
+    page.page.locator("#clear").click()
+    page.drawn()
+    assert page.js("window.vppViewer.selected()") is None
+    assert page.page.locator("#frame").is_hidden() and page.page.locator("#through").is_hidden()
+    assert page.page.locator("#step").input_value() == "0"
+    assert page.page.locator("#look").is_disabled()
+    assert page.js("window.vppViewer.drawnCameras()") == {"frusta": True, "tour": True}
+    assert len(page.js("window.vppViewer.labelBoxes()")) == len(doc["viewpoints"])
+    assert page.errors == []
+
+
+def test_colours_spread_over_the_plans_range_and_problems_only_pales_the_rest(
+    live, browser
+) -> None:
+    """A plan meeting r̄ with room to spare is not one flat colour: the met faces' colours run
+    from the finest to the coarsest r*; *problems only* pales exactly the met faces."""
+    client, url = live
+    mesh = upload_sample(client)
+    body = {"mesh_id": mesh, "sensor": SENSOR, "candidates": {"count": 40},
+            "target": {"resolution_mm": 5.0, "formulation": "visibility"}}  # fmt: skip
+    plan = submit(client, body)
+    assert wait(client, plan)["status"] == "succeeded"
+    page = Page(browser, f"{url}/v1/plans/{plan}/view")
+    _, arrays = unpack(client.get(f"/v1/plans/{plan}/scene").content)
+    met = arrays["state"] == 0
+    assert met.mean() > 0.5
+    colours = np.array(page.js("window.vppViewer.faceColours()")).reshape(-1, 3)
+    r = arrays["resolution_mm"][met]
+    fine, coarse = colours[met][r <= np.quantile(r, 0.05)], colours[met][r >= np.quantile(r, 0.95)]
+    assert np.abs(fine.mean(axis=0) - coarse.mean(axis=0)).max() > 60, (fine[:3], coarse[:3])
+    assert fine.mean() < coarse.mean()  # dark for the finest, light towards r̄
+    page.js("window.vppViewer.problemsOnly(true)")
+    shown = np.array(page.js("window.vppViewer.shownColours()")).reshape(-1, 3)
+    ghost = shown[met][0]
+    assert (shown[met] == ghost).all() and (shown[~met] == colours[~met]).all()
+    assert not (colours == ghost).all(axis=1).any()  # a colour of its own
+    assert page.page.locator("#legend .when-problems").is_visible()
+    assert page.errors == []
+
+
+def test_the_summary_keeps_numbers_with_their_units_and_explains_its_jargon(live, browser) -> None:
+    client, url = live
+    _, plan, _ = planned(client)
+    page = Page(browser, f"{url}/v1/plans/{plan}/view")
+    import re
+
+    cells = page.page.locator("#metrics td").all_inner_texts()
+    assert cells and not any(re.search(r"\d (%|mm)", c) for c in cells), cells
+    lines = page.js(
+        "[...document.querySelectorAll('#metrics th')].map(e => { const r = document.createRange();"
+        " r.selectNodeContents(e); return new Set([...r.getClientRects()].map(q => q.top)).size; })"
+    )
+    assert lines and set(lines) == {1}, lines  # no label over two lines
+    assert page.page.locator("#metrics th", has_text="mean C").get_attribute("title")
+    page.js("window.vppViewer.select(0)")
+    assert page.page.locator("#cam-faces .tip").get_attribute("title")
+
+
+def test_the_bundle_and_the_geometry_are_gzipped_on_the_wire(api) -> None:
+    """Sent gzipped to a client that takes gzip, whole to one that does not."""
+    client = api
+    mesh = upload_sample(client)
+    for path in ("/static/viewer/viewer.js", f"/v1/meshes/{mesh}/geometry"):
+        plain = client.get(path, headers={"Accept-Encoding": "identity"})
+        packed = client.get(path, headers={"Accept-Encoding": "gzip"})
+        assert plain.status_code == packed.status_code == 200
+        assert "content-encoding" not in plain.headers
+        assert packed.headers["content-encoding"] == "gzip"
+        assert packed.content == plain.content  # decoded by the client
+        assert int(packed.headers["content-length"]) < 0.6 * len(plain.content), path

@@ -1,9 +1,14 @@
-"""The plan viewer: its page, and the binary geometry and per-face results it draws."""
+"""The plan viewer: its page, its bundle, and the binary geometry and per-face results it draws.
+
+The bundle, the geometry and the scene go gzipped to a client that accepts gzip (the scene is
+stored gzipped; the others are compressed once per process or per request).
+"""
 
 from __future__ import annotations
 
 import gzip
-from functools import partial
+import hashlib
+from functools import cache, partial
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -38,6 +43,40 @@ def view_plan(plan_id: str) -> HTMLResponse:
     )
 
 
+@cache
+def _bundle(name: str) -> tuple[bytes, bytes, str]:
+    """(bytes, gzipped bytes, ETag) of a file of the viewer's bundle."""
+    data = (STATIC_DIR / name).read_bytes()
+    return data, gzip.compress(data, 9, mtime=0), f'"{hashlib.sha256(data).hexdigest()[:32]}"'
+
+
+@router.get("/static/viewer/viewer.js", response_class=Response, include_in_schema=False)
+def get_bundle(
+    if_none_match: Annotated[str | None, Header()] = None,
+    accept_encoding: Annotated[str | None, Header()] = None,
+) -> Response:
+    """viewer.js, gzipped where the client accepts it (before the static files' mount)."""
+    data, packed, etag = _bundle("viewer.js")
+    headers = {"ETag": etag, "Cache-Control": "no-cache", "Vary": "Accept-Encoding"}
+    if if_none_match == etag:
+        return Response(status_code=304, headers=headers)
+    return _maybe_gzip(data, packed, accept_encoding, "text/javascript", headers)
+
+
+def _accepts_gzip(accept_encoding: str | None) -> bool:
+    """Whether an Accept-Encoding header takes gzip."""
+    return "gzip" in (accept_encoding or "")
+
+
+def _maybe_gzip(
+    data: bytes, packed: bytes, accept_encoding: str | None, media: str, headers: dict[str, str]
+) -> Response:
+    """`packed` (gzip of `data`) with Content-Encoding where the client takes gzip, else `data`."""
+    if _accepts_gzip(accept_encoding):
+        return Response(packed, media_type=media, headers={**headers, "Content-Encoding": "gzip"})
+    return Response(data, media_type=media, headers=headers)
+
+
 @router.get("/v1/plans/{plan_id}/scene", response_class=Response, responses=BINARY)
 def get_plan_scene(
     plan_id: str,
@@ -46,7 +85,7 @@ def get_plan_scene(
     accept_encoding: Annotated[str | None, Header()] = None,
 ) -> Response:
     """Per-face achieved resolution and state, and the faces each viewpoint sees (binary)."""
-    gzipped = "gzip" in (accept_encoding or "")
+    gzipped = _accepts_gzip(accept_encoding)
     scene = partial(_scene, store, plan_id, gzipped)
     response = named_forever((plan_id, "plan"), if_none_match, scene, OCTETS)
     response.headers["Vary"] = "Accept-Encoding"
@@ -63,11 +102,25 @@ def _scene(store: StoreDep, plan_id: str, gzipped: bool) -> bytes:
 
 @router.get("/v1/meshes/{mesh_id}/geometry", response_class=Response, responses=BINARY)
 def get_mesh_geometry(
-    mesh_id: str, store: StoreDep, if_none_match: Annotated[str | None, Header()] = None
+    mesh_id: str,
+    store: StoreDep,
+    if_none_match: Annotated[str | None, Header()] = None,
+    accept_encoding: Annotated[str | None, Header()] = None,
 ) -> Response:
     """The mesh's vertices (float32 mm) and faces (uint32), for drawing (binary)."""
-    geometry = partial(planning.mesh_geometry, store, mesh_id)
-    return named_forever((mesh_id, "mesh"), if_none_match, geometry, OCTETS)
+    gzipped = _accepts_gzip(accept_encoding)
+    geometry = partial(_geometry, store, mesh_id, gzipped)
+    response = named_forever((mesh_id, "mesh"), if_none_match, geometry, OCTETS)
+    response.headers["Vary"] = "Accept-Encoding"
+    if gzipped and response.status_code == 200:
+        response.headers["Content-Encoding"] = "gzip"
+    return response
+
+
+def _geometry(store: StoreDep, mesh_id: str, gzipped: bool) -> bytes:
+    """The packed geometry, gzipped (level 1: fast, most of the gain) for a client that takes it."""
+    data = planning.mesh_geometry(store, mesh_id)
+    return gzip.compress(data, 1, mtime=0) if gzipped else data
 
 
 @router.get(

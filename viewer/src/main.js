@@ -2,7 +2,7 @@
 // the plan's per-face results, draws them, and exposes `window.vppViewer` for tests and scripts.
 import { AuthError, getBinary, getJson, postJson, setKey, base } from './api.js';
 import { unpack } from './packed.js';
-import { DESCRIPTIONS, FIXED, SPAN, faceColours, gradient } from './palette.js';
+import { DESCRIPTIONS, FIXED, GHOST, faceColours, fitScale, gradient, position } from './palette.js';
 import { PlanScene } from './scene3d.js';
 
 const $ = (id) => document.getElementById(id);
@@ -11,15 +11,25 @@ const PLAY_MS = 1200;
 const state = { plan: null, doc: null, meshId: null, geometry: null, scene: null, playing: null };
 const view = new PlanScene($('canvas'), $('labels'));
 view.onPick = (k) => select(k);
-view.onInteract = () => { $('frame').hidden = true; view.frame = null; };
+view.onInteract = () => leaveCamera();
 
 function status(text, error = false) {
   $('status').textContent = text;
   $('status').classList.toggle('error', error);
 }
 
+const NB = '\u00a0'; // a number and its unit never part at a line end
 const fmt = (x, d = 3) => (x === null || x === undefined ? '—' : Number(x).toFixed(d));
-const pct = (x) => `${(100 * x).toFixed(1)} %`;
+const pct = (x) => `${(100 * x).toFixed(1)}${NB}%`;
+const mm = (x, d = 3) => `${fmt(x, d)}${NB}mm`;
+const TIPS = {
+  'mean C': 'The paper\'s eq. 4: per counted face, the share of the selected viewpoints that '
+    + 'see it, averaged over the faces (1 = every viewpoint sees every face).',
+  'resolution met': 'Share of the counted area (and faces) whose achieved resolution r* is at '
+    + 'or below the target r̄, with every selected viewpoint counted.',
+  coverage: 'Share of the counted area (and faces) that at least one selected viewpoint sees.',
+  uncoverable: 'Faces that no candidate sees: no plan can cover them.',
+};
 
 /** Wait for the plan's job while it runs; the plan document once it has succeeded. */
 async function planDocument(plan) {
@@ -35,9 +45,19 @@ async function planDocument(plan) {
   }
 }
 
+/** Forget the plan shown while another loads: no selection, no camera view, no old figures. */
+function forget() {
+  if (!state.doc) return;
+  select(null);
+  state.doc = null;
+  for (const id of ['metrics', 'legend']) $(id).innerHTML = '';
+  $('summary').classList.add('pending');
+}
+
 async function load(plan) {
   const t0 = performance.now();
   status('Loading plan…');
+  if (plan !== state.shown) forget();
   $('plan-id').textContent = plan.slice(0, 12);
   $('plan-id').title = plan;
   const doc = await planDocument(plan);
@@ -53,13 +73,16 @@ async function load(plan) {
     state.geometry = geometry;
   }
   const a = scene.arrays;
-  const colours = faceColours(a.state, a.resolution_mm, doc.target.resolution_mm);
-  const first = state.doc === null;
-  Object.assign(state, { plan, doc, scene });
+  const scale = fitScale(a.state, a.resolution_mm, doc.target.resolution_mm);
+  const colours = faceColours(a.state, a.resolution_mm, scale);
+  const first = state.shown === undefined;
+  Object.assign(state, { plan, doc, scene, shown: plan });
   view.setPlan(colours, doc.viewpoints, doc.sensor, a.view_offsets, a.view_faces);
-  if (first) view.fit(true);
+  view.setProblemsOnly($('problems').checked, a.state);
+  if (first) view.fit(false);
+  $('summary').classList.remove('pending');
   summary(doc);
-  legend(doc, scene);
+  legend(doc, scene, scale);
   links(plan);
   stepper(doc.viewpoints.length);
   select(null);
@@ -73,36 +96,43 @@ function summary(doc) {
   const m = doc.metrics;
   const s = doc.solver;
   const rows = [
-    ['part', `${doc.mesh.faces.toLocaleString()} faces, ${fmt(doc.mesh.area_mm2, 1)} mm²`],
-    ['target', `r̄ = ${doc.target.resolution_mm} mm, ${doc.target.formulation}`],
+    ['part', `${doc.mesh.faces.toLocaleString()}${NB}faces, ${fmt(doc.mesh.area_mm2, 1)}${NB}mm²`],
+    ['target', `r̄ = ${mm(doc.target.resolution_mm, 2)}, ${doc.target.formulation}`],
     ['viewpoints', `${doc.viewpoints.length} of ${doc.candidates.length} candidates`],
     ['solver', `${s.name}: ${s.status}, objective ${fmt(s.objective, 2)}, bound ${fmt(s.bound, 2)}, gap ${fmt(s.gap, 4)}`],
     ['coverage', `${pct(m.coverage.area)} of area (max ${pct(m.coverage.max_area)}), ${pct(m.coverage.faces)} of faces`],
     ['resolution met', `${pct(m.resolution.met_area)} of area (max ${pct(m.resolution.max_met_area)}), ${pct(m.resolution.met_faces)} of faces`],
-    ['median r*', `${fmt(m.resolution.median_mm)} mm`],
-    ['uncoverable', `${doc.uncoverable.faces} faces, ${fmt(doc.uncoverable.area_mm2, 2)} mm²`],
-    ['tour', `${fmt(doc.tour_length_mm, 0)} mm`],
-    ['C mean (eq. 4)', fmt(m.paper.C_mean, 4)],
+    ['median r*', mm(m.resolution.median_mm)],
+    ['uncoverable', `${doc.uncoverable.faces}${NB}faces, ${fmt(doc.uncoverable.area_mm2, 2)}${NB}mm²`],
+    ['tour', mm(doc.tour_length_mm, 0)],
+    ['mean C', fmt(m.paper.C_mean, 4)],
   ];
   if (doc.partial) rows.splice(5, 0, ['partial cover', `${pct(doc.partial.covered_fraction)} of coverable area (asked ${pct(doc.partial.min_coverage)})`]);
-  $('metrics').innerHTML = rows.map(([k, v]) => `<tr><th>${k}</th><td>${v}</td></tr>`).join('');
+  const th = (k) => (TIPS[k] ? `<th title="${TIPS[k]}" class="tip">${k}</th>` : `<th>${k}</th>`);
+  $('metrics').innerHTML = rows.map(([k, v]) => `<tr>${th(k)}<td>${v}</td></tr>`).join('');
   api.summary = Object.fromEntries(rows);
 }
 
-function legend(doc, scene) {
+function legend(doc, scene, scale) {
   const t = doc.target.resolution_mm;
   const counts = [0, 0, 0, 0, 0];
   for (const s of scene.arrays.state) counts[s] += 1;
-  const ticks = [0, 0.5, 1, 1.5, 2].map((x) => `<span style="left:${(100 * x) / SPAN}%">${fmt(x * t, 2)}</span>`);
-  $('legend').innerHTML = `<h2>achieved resolution r* (mm), target ${t} mm</h2>
+  const digits = (x) => Math.max(2, 1 - Math.floor(Math.log10(x)));
+  const ticks = [scale.lo, Math.sqrt(scale.lo * t), t, Math.sqrt(t * scale.hi), scale.hi]
+    .map((x) => `<span style="left:${100 * position(x, scale)}%">${fmt(x, digits(x))}</span>`);
+  const swatch = (rgb) => `<span class="swatch" style="background:rgb(${rgb.join(',')})"></span>`;
+  $('legend').innerHTML = `<h2>achieved resolution r* (mm, log scale)</h2>
     <div class="bar" style="background:${gradient('met')} 0 0/50% 100% no-repeat, ${gradient('unmet')} 100% 0/50% 100% no-repeat">
-      <div class="target" style="left:calc(${100 / SPAN}% - 1px)" title="target r̄"></div></div>
+      <div class="target" style="left:calc(50% - 1px)" title="target r̄ = ${t} mm"></div></div>
     <div class="ticks">${ticks.join('')}</div>
+    <div class="halves"><span>meets r̄: ${counts[0]}${NB}faces</span><span>target r̄</span><span>misses r̄: ${counts[1]}${NB}faces</span></div>
     <ul class="legend-list">
-      <li>met (r* ≤ r̄): ${counts[0]} faces · not met: ${counts[1]} faces (beyond ${SPAN}·r̄: darkest)</li>
-      ${['uncovered', 'uncoverable', 'excluded'].map((k, i) => `<li><span class="swatch" style="background:rgb(${FIXED[k].join(',')})"></span>${DESCRIPTIONS[k]}: ${counts[i + 2]} faces</li>`).join('')}
+      ${['uncovered', 'uncoverable', 'excluded'].map((k, i) => `<li class="state">${swatch(FIXED[k])}${DESCRIPTIONS[k]}: ${counts[i + 2]}${NB}faces</li>`).join('')}
+      <li class="when-selected">${swatch([225, 232, 238])}faded: not seen by the selected viewpoint</li>
+      <li class="when-problems">${swatch(GHOST)}pale: meets r̄ (problems only)</li>
     </ul>`;
   api.stateCounts = counts;
+  api.scale = scale;
 }
 
 function links(plan) {
@@ -128,10 +158,14 @@ async function formulations(plan) {
 async function switchTo(related) {
   if (related.id === state.plan) return;
   api.ready = false;
+  for (const b of $('formulations').children) {
+    b.classList.toggle('active', b.dataset.formulation === related.formulation);
+  }
   try {
     if (!related.available) await postJson('/v1/plans', related.request);
   } catch (e) {
     status(`Could not submit the ${related.formulation} plan: ${e.message || e}`, true);
+    await formulations(state.plan);
     api.ready = true; // the plan shown is still whole
     return;
   }
@@ -144,11 +178,24 @@ function stepper(n) {
   $('step').disabled = n === 0;
 }
 
+/** Back from looking through a camera: the frame and caption gone, the other cameras back. */
+function leaveCamera() {
+  $('frame').hidden = true;
+  $('through').hidden = true;
+  if (view.frame) { view.frame = null; view.applyVisibility(); view.render(); }
+}
+
 function select(k) {
   view.select(k);
   $('look').disabled = k === null;
-  if (k === null) { $('camera-info').hidden = true; return; }
-  $('step').value = String(k + 1);
+  $('side').classList.toggle('has-selection', k !== null);
+  $('step').value = String(k === null ? 0 : k + 1);
+  $('step-label').textContent = `${k === null ? '–' : k + 1} / ${state.doc?.viewpoints.length ?? 0}`;
+  if (k === null) {
+    $('camera-info').hidden = true;
+    if (view.frame) { leaveCamera(); view.fit(false); }
+    return;
+  }
   const v = state.doc.viewpoints[k];
   const faces = view.facesOf(k);
   const met = faces.reduce((n, f) => n + (state.scene.arrays.state[f] === 0 ? 1 : 0), 0);
@@ -160,7 +207,7 @@ function select(k) {
       <tr><th>position</th><td id="cam-position">${vec(v.position)}</td></tr>
       <tr><th>gaze</th><td id="cam-gaze">${vec(v.gaze)}</td></tr>
       <tr><th>up</th><td id="cam-up">${vec(v.up)}</td></tr>
-      <tr><th>sees</th><td id="cam-faces">${faces.length} faces, ${met} of them at r̄ after the whole plan</td></tr>
+      <tr><th>sees</th><td id="cam-faces">${faces.length}${NB}faces; <span class="tip" title="Of the faces this viewpoint sees, those whose achieved resolution r* meets the target r̄ once every selected viewpoint is counted.">${met} of them meet r̄ in the plan</span></td></tr>
     </table>
     <div>camera_to_world (OpenCV frame, mm)</div><pre id="cam-matrix">${c2w}</pre>`;
 }
@@ -179,21 +226,29 @@ function look() {
   const [x, y, w, h] = out.frame;
   Object.assign($('frame').style, { left: `${x}px`, top: `${y}px`, width: `${w}px`, height: `${h}px` });
   $('frame').hidden = false;
+  const v = state.doc.viewpoints[view.selected];
+  $('through').textContent = `looking through viewpoint ${view.selected + 1} of ${state.doc.viewpoints.length}`
+    + ` (candidate ${v.id}): its sensor frame · drag to leave`;
+  $('through').hidden = false;
   return out;
 }
 
 function wire() {
   $('prev').onclick = () => step(-1);
   $('next').onclick = () => step(1);
-  $('step').oninput = (e) => select(Number(e.target.value) - 1);
+  $('step').oninput = (e) => { select(Number(e.target.value) - 1 < 0 ? null : Number(e.target.value) - 1); if (view.frame) look(); };
   $('play').onclick = () => {
     if (state.playing) { clearInterval(state.playing); state.playing = null; $('play').textContent = 'play'; return; }
     $('play').textContent = 'stop';
     state.playing = setInterval(() => step(1), PLAY_MS);
   };
   $('look').onclick = look;
-  $('fit').onclick = () => { $('frame').hidden = true; view.fit(true); };
-  $('fit-part').onclick = () => { $('frame').hidden = true; view.fit(false); };
+  $('fit').onclick = () => { leaveCamera(); view.fit(true); };
+  $('fit-part').onclick = () => { leaveCamera(); view.fit(false); };
+  $('problems').onchange = (e) => {
+    $('side').classList.toggle('problems', e.target.checked);
+    view.setProblemsOnly(e.target.checked, state.scene.arrays.state);
+  };
   $('clear').onclick = () => select(null);
   for (const what of ['frusta', 'tour', 'labels']) {
     $(`show-${what}`).onchange = (e) => view.show(what, e.target.checked);
@@ -243,6 +298,10 @@ const api = {
   shownColours: () => Array.from(view.shown),
   facing: () => view.facing(),
   fit: (all = true) => view.fit(all),
+  labelBoxes: () => view.labelBoxes(),
+  drawnCameras: () => ({ frusta: view.frusta.visible, tour: view.tour.visible }),
+  partBox: () => view.partBox(),
+  problemsOnly: (on) => { $('problems').checked = on; $('problems').onchange({ target: $('problems') }); },
   setShading: (on) => { $('shading').checked = on; view.setShading(on); },
   show: (what, on) => view.show(what, on),
   drawn: () => view.drawn(),

@@ -1,13 +1,19 @@
-// The 3D scene: the part coloured per face, the selected cameras' frusta, the tour, picking.
+// The 3D scene: the part coloured per face, the selected cameras (a small glyph each; the
+// selected one's depth-of-field box), the tour, number labels at each camera's aim point on
+// the part (placed so that none hides another), picking.
 import * as THREE from 'three';
 import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
-import { CSS2DObject, CSS2DRenderer } from 'three/addons/renderers/CSS2DRenderer.js';
+import { placeLabels } from './labels.js';
+import { GHOST } from './palette.js';
 
 const FRUSTUM = 0x1f6fb2;
 const SELECTED = 0xe8590c;
 const TOUR = 0x7048e8;
-const DIM = 222; // faces the selected camera does not see fade towards this grey (sRGB)
-const DIM_MIX = 0.8;
+const DIM = 255; // faces the selected camera does not see fade towards white, keeping a tint
+const DIM_MIX = 0.72;
+const GLYPH = 0.25; // a camera glyph is a pyramid this many part diagonals deep (≤ near_mm)
+const FIT_MARGIN = 0.1; // share of the canvas left around what `fit` frames
+const FIT_POINTS = 20000;
 const PIN_PX = 9; // camera pins, drawn and picked in screen pixels
 const PICK_PX = 8;
 const LINEAR = Float32Array.from({ length: 256 }, (_, i) => {
@@ -19,11 +25,11 @@ const CV_TO_GL = new THREE.Matrix4().makeScale(1, -1, -1);
 
 export class PlanScene {
   constructor(canvas, labels) {
+    this.labelLayer = labels;
     this.canvas = canvas;
     this.renderer = new THREE.WebGLRenderer({ canvas, antialias: false, preserveDrawingBuffer: true });
     this.renderer.setPixelRatio(window.devicePixelRatio);
     this.renderer.setClearColor(0xf3f4f6);
-    this.labelRenderer = new CSS2DRenderer({ element: labels });
     this.scene = new THREE.Scene();
     this.camera = new THREE.PerspectiveCamera(40, 1, 1, 1e5);
     this.scene.add(this.camera);
@@ -60,6 +66,8 @@ export class PlanScene {
     this.part = new THREE.Mesh(geometry, this.materials.shaded);
     this.scene.add(this.part);
     this.nFaces = m;
+    this.centroids = new Float32Array(m * 3);
+    for (let i = 0; i < m * 9; i++) this.centroids[3 * Math.floor(i / 9) + (i % 3)] += pos[i] / 3;
   }
 
   setShading(on) {
@@ -75,18 +83,50 @@ export class PlanScene {
     this.offsets = offsets;
     this.seen = seen;
     this.selected = null;
+    this.frame = null;
+    this.aims = viewpoints.map((_, k) => this.aimPoint(k));
     this.buildCameras();
     this.paint();
+  }
+
+  /** Where viewpoint k looks on the part: the centre of the face it sees nearest its central
+   * ray (the point at the working distance along its gaze when it sees none). */
+  aimPoint(k) {
+    const v = this.viewpoints[k];
+    const p = new THREE.Vector3(...v.position);
+    const g = new THREE.Vector3(...v.gaze).normalize();
+    const wd = this.sensor.working_distance_mm ?? (this.sensor.near_mm + this.sensor.far_mm) / 2;
+    let best = p.clone().addScaledVector(g, wd);
+    let bestD = Infinity;
+    const c = new THREE.Vector3();
+    for (const f of this.facesOf(k)) {
+      c.fromArray(this.centroids, 3 * f).sub(p);
+      const along = c.dot(g);
+      const d = c.addScaledVector(g, -along).lengthSq();
+      if (d < bestD) { bestD = d; best = new THREE.Vector3().fromArray(this.centroids, 3 * f); }
+    }
+    return best;
   }
 
   /** Faces of viewpoint k (visiting order) as a Uint32Array of face ids. */
   facesOf(k) { return this.seen.subarray(this.offsets[k], this.offsets[k + 1]); }
 
-  /** Colour the faces: their own colour, faded where the selected camera does not see them. */
+  /** Show only the problems (`on`): met faces drawn pale, by their state array (M,) uint8. */
+  setProblemsOnly(on, states) {
+    this.problems = on;
+    this.states = states;
+    this.paint();
+  }
+
+  /** Colour the faces: their own colour (met ones pale under "problems only"), faded where the
+   * selected camera does not see them. */
   paint() {
     const attr = this.part.geometry.getAttribute('color');
     const out = attr.array;
     const shown = new Uint8Array(this.colours);
+    if (this.problems) {
+      for (let i = 0; i < this.nFaces; i++) if (this.states[i] === 0) shown.set(GHOST, 3 * i);
+    }
     if (this.selected !== null) {
       const keep = new Uint8Array(this.nFaces);
       for (const f of this.facesOf(this.selected)) keep[f] = 1;
@@ -142,17 +182,33 @@ export class PlanScene {
     return pts;
   }
 
+  /** Segment end points of viewpoint k's glyph: a pyramid from the camera to a rectangle of
+   * the sensor's aspect `depth` mm along its gaze (8 edges). */
+  glyphLines(k, depth) {
+    const s = this.sensor;
+    const tx = Math.tan((s.fov_x_deg * Math.PI) / 360);
+    const ty = Math.tan((s.fov_y_deg * Math.PI) / 360);
+    const m = this.matrix(k);
+    const p = new THREE.Vector3(...this.viewpoints[k].position);
+    const c = [[-1, -1], [1, -1], [1, 1], [-1, 1]]
+      .map(([a, b]) => new THREE.Vector3(a * depth * tx, b * depth * ty, depth).applyMatrix4(m));
+    return c.flatMap((q, i) => [p, q, q, c[(i + 1) % 4]]);
+  }
+
   buildCameras() {
     for (const child of [...this.cameras.children]) {
       child.geometry?.dispose();
       this.cameras.remove(child);
     }
+    for (const el of [...this.labelLayer.children]) el.remove();
     const n = this.viewpoints.length;
+    const diagonal = this.part.geometry.boundingBox.getSize(new THREE.Vector3()).length();
+    const depth = Math.min(GLYPH * diagonal, this.sensor.near_mm);
     const all = [];
-    for (let k = 0; k < n; k++) all.push(...this.frustumLines(k));
+    for (let k = 0; k < n; k++) all.push(...this.glyphLines(k, depth));
     this.frusta = new THREE.LineSegments(
       new THREE.BufferGeometry().setFromPoints(all),
-      new THREE.LineBasicMaterial({ color: FRUSTUM, transparent: true, opacity: 0.35 }),
+      new THREE.LineBasicMaterial({ color: FRUSTUM, transparent: true, opacity: 0.6 }),
     );
     this.highlight = new THREE.LineSegments(
       new THREE.BufferGeometry(), new THREE.LineBasicMaterial({ color: SELECTED }));
@@ -164,17 +220,18 @@ export class PlanScene {
     pins.setAttribute('color', new THREE.BufferAttribute(new Float32Array(3 * n), 3));
     this.pins = new THREE.Points(pins, new THREE.PointsMaterial(
       { size: PIN_PX, sizeAttenuation: false, vertexColors: true }));
-    this.labels = positions.map((p, k) => {
+    this.labels = this.aims.map((p, k) => {
       const div = document.createElement('div');
       div.className = 'cam-label';
       div.textContent = String(k + 1);
       div.dataset.k = String(k);
+      div.title = `viewpoint ${k + 1}: click to select; the number sits where it looks`;
       div.addEventListener('click', () => this.onPick?.(k));
-      const label = new CSS2DObject(div);
-      label.position.copy(p);
-      return label;
+      this.labelLayer.append(div);
+      return { element: div, anchor: p, visible: true };
     });
-    this.cameras.add(this.frusta, this.highlight, this.tour, this.pins, ...this.labels);
+    for (const l of this.labels) l.size = [l.element.offsetWidth, l.element.offsetHeight];
+    this.cameras.add(this.frusta, this.highlight, this.tour, this.pins);
     this.applyVisibility();
   }
 
@@ -198,24 +255,49 @@ export class PlanScene {
     this.render();
   }
 
+  /** What is drawn: the toggles, and while looking through a camera none of the others. */
   applyVisibility() {
     const v = { frusta: true, tour: true, labels: true, ...this.visible };
-    this.frusta.visible = this.highlight.visible = this.pins.visible = v.frusta;
-    this.tour.visible = v.tour;
-    this.labels.forEach((l) => { l.visible = v.labels; });
+    const through = this.frame !== null && this.frame !== undefined;
+    this.frusta.visible = this.pins.visible = v.frusta && !through;
+    this.highlight.visible = v.frusta && !through;
+    this.tour.visible = v.tour && !through;
+    this.labels.forEach((l) => { l.visible = v.labels && !through; });
   }
 
-  /** Frame the box of the part (and of the cameras when `all`). */
+  /** Frame the part (and the cameras when `all`) from the current direction (a default one
+   * the first time): the eye just far enough that the part's vertices (up to FIT_POINTS of
+   * them) and every camera fall inside the canvas less FIT_MARGIN on each side. */
   fit(all = true) {
     this.frame = null;
-    const box = this.part.geometry.boundingBox.clone();
-    if (all) for (const v of this.viewpoints) box.expandByPoint(new THREE.Vector3(...v.position));
-    const centre = box.getCenter(new THREE.Vector3());
-    const size = box.getSize(new THREE.Vector3()).length() || 1;
-    const dir = new THREE.Vector3(1, -1.4, 1).normalize();
-    const dist = (0.9 * size) / 2 / Math.tan((this.camera.fov * Math.PI) / 360);
-    this.camera.up.set(0, 0, 1);
-    this.camera.position.copy(centre).addScaledVector(dir, dist);
+    this.applyVisibility();
+    const pos = this.part.geometry.getAttribute('position');
+    const points = [];
+    const stride = Math.max(1, Math.floor(pos.count / FIT_POINTS));
+    for (let i = 0; i < pos.count; i += stride) points.push(new THREE.Vector3().fromBufferAttribute(pos, i));
+    if (all) for (const v of this.viewpoints) points.push(new THREE.Vector3(...v.position));
+    const centre = new THREE.Box3().setFromPoints(points).getCenter(new THREE.Vector3());
+    const offset = this.fitted ? this.camera.position.clone().sub(this.controls.target)
+      : new THREE.Vector3(1, -1.4, 1);
+    if (!this.fitted) this.camera.up.set(0, 0, 1);
+    this.fitted = true;
+    this.camera.fov = 40;
+    const { width, height } = this.size();
+    this.camera.aspect = width / height;
+    this.camera.position.copy(centre).add(offset);
+    this.camera.lookAt(centre);
+    this.camera.updateMatrixWorld();
+    const ty = Math.tan((this.camera.fov * Math.PI) / 360) * (1 - 2 * FIT_MARGIN);
+    const tx = ty * this.camera.aspect;
+    const inverse = this.camera.matrixWorld.clone().invert();
+    const c = centre.clone().applyMatrix4(inverse);
+    let dist = 0;
+    for (const p of points) {
+      const q = p.clone().applyMatrix4(inverse).sub(c); // eye frame, from the centre
+      dist = Math.max(dist, q.z + Math.abs(q.x) / tx, q.z + Math.abs(q.y) / ty);
+    }
+    const dir = this.camera.getWorldDirection(new THREE.Vector3());
+    this.camera.position.copy(centre).addScaledVector(dir, -dist);
     this.controls.target.copy(centre);
     this.resize();
   }
@@ -234,6 +316,7 @@ export class PlanScene {
     const wd = s.working_distance_mm ?? (s.near_mm + s.far_mm) / 2;
     this.controls.target.set(...v.position).addScaledVector(new THREE.Vector3(...v.gaze), wd);
     this.frame = { k, f };
+    this.applyVisibility();
     this.resize();
     this.camera.quaternion.setFromRotationMatrix(m); // OrbitControls' lookAt may round it
     this.render();
@@ -250,7 +333,6 @@ export class PlanScene {
   resize() {
     const { width, height } = this.size();
     this.renderer.setSize(width, height, false);
-    this.labelRenderer.setSize(width, height);
     this.camera.aspect = width / height;
     if (this.frame) {
       this.camera.fov = (2 * Math.atan(height / 2 / this.frame.f) * 180) / Math.PI;
@@ -273,10 +355,64 @@ export class PlanScene {
       this.camera.far = dist * 10 + size * 10;
       this.camera.updateProjectionMatrix();
       this.renderer.render(this.scene, this.camera);
-      this.labelRenderer.render(this.scene, this.camera);
+      this.placeLabels();
       this.frames = (this.frames || 0) + 1;
       for (const resolve of this.waiting.splice(0)) resolve(this.frames);
     });
+  }
+
+  /** Put each shown number label next to its aim point, none over another, all inside the
+   * canvas; a label with no free place nearby is hidden (zoom in to see it). Labels of cameras
+   * that look at the far side of the part are drawn faint. */
+  placeLabels() {
+    if (!this.labels) return;
+    const { width, height } = this.size();
+    const eye = this.camera.getWorldDirection(new THREE.Vector3());
+    const items = [];
+    for (const [k, l] of this.labels.entries()) {
+      const p = l.anchor.clone().project(this.camera);
+      const shown = l.visible && p.z < 1;
+      l.element.hidden = !shown;
+      if (!shown) continue;
+      const far = eye.dot(new THREE.Vector3(...this.viewpoints[k].gaze)) < 0;
+      l.element.classList.toggle('far', far);
+      items.push({ l, x: ((p.x + 1) / 2) * width, y: ((1 - p.y) / 2) * height, far, k });
+    }
+    // the selected one first, then the labels of the near side
+    items.sort((a, b) => (b.k === this.selected) - (a.k === this.selected) || a.far - b.far);
+    const placed = placeLabels(items.map((it) => ({ x: it.x, y: it.y, w: it.l.size[0], h: it.l.size[1] })),
+      width, height);
+    items.forEach((it, i) => {
+      const r = placed[i];
+      it.l.element.hidden = r === null;
+      if (r) it.l.element.style.transform = `translate(${r[0]}px, ${r[1]}px)`;
+    });
+  }
+
+  /** The part's projected box [x0, y0, x1, y1] in canvas CSS px (up to 20 000 vertices). */
+  partBox() {
+    const pos = this.part.geometry.getAttribute('position');
+    const { width, height } = this.size();
+    const stride = Math.max(1, Math.floor(pos.count / 20000));
+    const box = [Infinity, Infinity, -Infinity, -Infinity];
+    const p = new THREE.Vector3();
+    for (let i = 0; i < pos.count; i += stride) {
+      p.fromBufferAttribute(pos, i).project(this.camera);
+      const x = ((p.x + 1) / 2) * width;
+      const y = ((1 - p.y) / 2) * height;
+      box[0] = Math.min(box[0], x); box[1] = Math.min(box[1], y);
+      box[2] = Math.max(box[2], x); box[3] = Math.max(box[3], y);
+    }
+    return box;
+  }
+
+  /** Canvas rectangles [x, y, w, h] (CSS px) of the number labels shown, by camera index. */
+  labelBoxes() {
+    const c = this.canvas.getBoundingClientRect();
+    return Object.fromEntries(this.labels.filter((l) => !l.element.hidden).map((l) => {
+      const r = l.element.getBoundingClientRect();
+      return [l.element.dataset.k, [r.left - c.left, r.top - c.top, r.width, r.height]];
+    }));
   }
 
   /** A promise of the number of frames drawn, resolved once the next frame is on screen. */

@@ -2,6 +2,10 @@
 
 Every function takes documents or arrays and returns PNG bytes; the shells decide where
 they go. Units are on every axis; the target resolution is marked where it applies.
+
+Colours speak the viewer's language (viewer/src/palette.js, kept equal by a test): blue to
+green for r* that meets the target r̄, yellow to red for r* that misses it, magenta for
+uncovered surface. The two formulations are told apart by colours outside that language.
 """
 
 from __future__ import annotations
@@ -13,7 +17,7 @@ from typing import Any
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
-from matplotlib.ticker import NullFormatter, ScalarFormatter
+from matplotlib.ticker import MaxNLocator, NullFormatter, ScalarFormatter
 
 from vpp_core.candidates.generator import planning_mesh
 from vpp_core.mesh.part import Part
@@ -22,8 +26,17 @@ from vpp_core.plan.metrics import Histogram
 from vpp_core.report.pointcloud import CloudStats
 from vpp_core.report.studies import DecimationRow, Study, SweepRow
 
-STYLE = {"density": ("tab:red", "-", "o"), "visibility": ("tab:blue", "--", "*")}
-"""Colour, line and marker per formulation (the paper's: red = S, blue = V)."""
+PALETTE: dict[str, Any] = {
+    "met": [(8, 69, 148), (66, 146, 198), (116, 196, 118)],
+    "unmet": [(254, 224, 139), (253, 141, 60), (189, 0, 38)],
+    "uncovered": (208, 28, 139),
+    "uncoverable": (85, 85, 85),
+    "excluded": (176, 160, 128),
+}
+"""sRGB bytes: the met ramp (finest → just meets r̄), the unmet ramp (just misses → worst) and
+the fixed face states, as in viewer/src/palette.js."""
+STYLE = {"density": ("#5e3c99", "-", "o"), "visibility": ("#252525", "--", "D")}
+"""Colour, line and marker per formulation: violet and black, outside the r* colours."""
 DPI = 110
 MAX_DRAWN_FACES = 20_000
 """The 3D view draws a decimated copy of bigger parts (matplotlib draws each polygon)."""
@@ -37,37 +50,84 @@ def _png(fig: Figure) -> bytes:
     return buf.getvalue()
 
 
-def sweep_png(study: Study) -> bytes:
-    """#OVP against target resolution for both formulations (paper Fig. 3 right)."""
-    fig = Figure(figsize=(6.4, 4.2))
-    ax = fig.add_subplot()
-    for name, (colour, line, marker) in STYLE.items():
-        rows = sorted((r for r in study.rows if r.formulation == name), key=_resolution)
+def rgb(c: Sequence[int]) -> tuple[float, float, float]:
+    """An sRGB byte triple as matplotlib's 0–1 floats."""
+    return (c[0] / 255, c[1] / 255, c[2] / 255)
+
+
+def ramp_colour(stops: Sequence[Sequence[int]], t: float) -> tuple[float, float, float]:
+    """The colour at t in [0, 1] along piecewise-linear sRGB stops (palette.js `ramp`)."""
+    x = min(max(t, 0.0), 1.0) * (len(stops) - 1)
+    i = min(int(x), len(stops) - 2)
+    a, b = np.asarray(stops[i], float), np.asarray(stops[i + 1], float)
+    return rgb(np.round(a + (b - a) * (x - i)).astype(int).tolist())
+
+
+def bin_colours(edges: np.ndarray, target_mm: float) -> list[tuple[float, float, float]]:
+    """Colour of each histogram bin (edges in mm) on the viewer's scale: the met ramp (log) from
+    the first bin to r̄, the unmet ramp (log) from r̄ to the last edge."""
+    centres = np.sqrt(np.maximum(edges[:-1], 1e-9) * edges[1:])
+    lo, hi = max(centres[0], 1e-9), max(edges[-1], target_mm * 1.25)
+    out = []
+    for c in centres:
+        if c <= target_mm:
+            t = 1 - np.log(target_mm / c) / np.log(target_mm / lo) if lo < target_mm else 1.0
+            out.append(ramp_colour(PALETTE["met"], t))
+        else:
+            out.append(
+                ramp_colour(PALETTE["unmet"], np.log(c / target_mm) / np.log(hi / target_mm))
+            )
+    return out
+
+
+def sweep_png(study: Study, name: str | None = None) -> bytes:
+    """`sweep_figure` as PNG bytes."""
+    return _png(sweep_figure(study, name))
+
+
+def sweep_figure(study: Study, name: str | None = None) -> Figure:
+    """Per target resolution, for both formulations: #OVP (paper Fig. 3 right) and the share
+    of the area that meets the target and that is seen (%). `name`: the mesh file's name."""
+    fig = Figure(figsize=(11, 4.2))
+    views_ax, area_ax = fig.subplots(1, 2)
+    for formulation, (colour, line, marker) in STYLE.items():
+        rows = sorted((r for r in study.rows if r.formulation == formulation), key=_resolution)
         x = [_resolution(r) for r in rows]
-        y = [r.viewpoints for r in rows]
-        ax.plot(x, y, line, color=colour, marker=marker, label=name)
+        big = formulation == "density"  # the other's marker is drawn smaller, on top
+        style = {"color": colour, "marker": marker, "ms": 8 if big else 4.5, "mfc": "white"}
+        views_ax.plot(x, [r.viewpoints for r in rows], line, label=formulation, **style)
+        met = [100 * r.resolution.met_area for r in rows]
+        area_ax.plot(x, met, line, label=f"{formulation}: area at r* ≤ r̄", **style)
+        seen_ = [100 * r.coverage.area for r in rows]
+        area_ax.plot(x, seen_, ":", color=colour, lw=1, label=f"{formulation}: area seen")
         open_ = [k for k, r in enumerate(rows) if r.solver.status != "optimal"]
         if open_:
-            ax.plot(
+            views_ax.plot(
                 [x[k] for k in open_],
-                [y[k] for k in open_],
+                [rows[k].viewpoints for k in open_],
                 "s",
+                ms=12,
                 mfc="none",
-                color="k",
-                label="not proven optimal" if name == "density" else None,
+                color="#999999",
+                label="not proven optimal" if big else None,
             )
-    ax.axvline(study.request.target.resolution_mm, color="grey", ls=":", label="request target")
-    ax.set_xlabel("target resolution r̄ (mm)")
-    ax.set_ylabel("selected viewpoints (#OVP)")
-    ax.set_title(_title("resolution sweep", study))
-    ax.grid(alpha=0.3)
-    ax.legend()
-    return _png(fig)
+    views_ax.yaxis.set_major_locator(MaxNLocator(integer=True))
+    views_ax.set_ylabel("selected viewpoints (#OVP)")
+    views_ax.set_title("viewpoints")
+    area_ax.set_ylabel("share of the counted area (%)")
+    area_ax.set_ylim(0, 105)
+    area_ax.set_title("resolution met and coverage")
+    for ax in (views_ax, area_ax):
+        ax.set_xlabel("target resolution r̄ (mm)")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.suptitle(_title("resolution sweep", study, name))
+    return fig
 
 
-def decimation_png(study: Study) -> bytes:
+def decimation_png(study: Study, name: str | None = None) -> bytes:
     """Coverage and resolution met on the original against the planning mesh's faces
-    (paper Fig. 3 left): solid = density, dashed = visibility."""
+    (paper Fig. 3 left): solid = density, dashed = visibility. `name`: the mesh file's name."""
     fig = Figure(figsize=(10, 4.2))
     cover_ax, met_ax = fig.subplots(1, 2)
     for name, (colour, line, marker) in STYLE.items():
@@ -108,38 +168,46 @@ def decimation_png(study: Study) -> bytes:
     cover_ax.set_title("coverage (numbers: #OVP)")
     met_ax.set_title("resolution met")
     met_ax.legend()
-    fig.suptitle(_title("decimation study", study))
+    fig.suptitle(_title("decimation study", study, name))
     return _png(fig)
 
 
 def histogram_png(
     histograms: Sequence[tuple[str, Histogram]], target_mm: float, title: str = ""
 ) -> bytes:
+    """`histogram_figure` as PNG bytes."""
+    return _png(histogram_figure(histograms, target_mm, title))
+
+
+def histogram_figure(
+    histograms: Sequence[tuple[str, Histogram]], target_mm: float, title: str = ""
+) -> Figure:
     """Area per achieved-resolution bin, one series per (formulation, histogram), with the
-    target marked (paper Fig. 5); overflow and unseen area in the legend."""
+    target marked (paper Fig. 5); overflow and unseen area in the legend. One series: bars in
+    the viewer's r* colours; several: outlines in the formulations' colours (no blend)."""
     fig = Figure(figsize=(6.4, 4.2))
     ax = fig.add_subplot()
     for name, h in histograms:
         edges = np.asarray(h.edges_mm)
         total = sum(h.area_mm2) + h.overflow_area_mm2 + h.unseen_area_mm2 or 1.0
-        colour = STYLE.get(name, ("tab:grey", "-", "o"))[0]
+        colour, line, _ = STYLE.get(name, ("#252525", "-", "o"))
         share = 100 * np.asarray(h.area_mm2) / total
         extra = 100 * (h.overflow_area_mm2 / total), 100 * (h.unseen_area_mm2 / total)
-        ax.stairs(
-            share,
-            edges,
-            fill=True,
-            alpha=0.45,
-            color=colour,
-            label=f"{name} (beyond {edges[-1]:g} mm: {extra[0]:.1f} %, unseen {extra[1]:.1f} %)",
-        )
+        label = f"{name} (beyond {edges[-1]:g} mm: {extra[0]:.1f} %, unseen {extra[1]:.1f} %)"
+        if len(histograms) == 1:
+            ax.bar(
+                edges[:-1], share, np.diff(edges), align="edge", color=bin_colours(edges, target_mm)
+            )
+            ax.plot([], [], " ", label=label)
+        else:
+            ax.stairs(share, edges, color=colour, ls=line, lw=1.8, label=label)
     ax.axvline(target_mm, color="k", lw=1.5, label=f"target r̄ = {target_mm:g} mm")
     ax.set_xlabel("achieved resolution r* per face (mm)")
     ax.set_ylabel("share of the counted area (%)")
     ax.set_title(title or "resolution per surface element")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
-    return _png(fig)
+    return fig
 
 
 def neighbours_png(stats: CloudStats, title: str = "") -> bytes:
@@ -174,21 +242,20 @@ def cameras_png(part: Part, doc: PlanDocument) -> bytes:
     aims = positions + gazes * doc.sensor.working_distance
     for ax in (overview, close):
         _draw_part(ax, mesh)
-    _draw_lines(overview, frusta, "tab:red", 0.6)
+    _draw_lines(overview, frusta, "#1f6fb2", 0.5)
     if len(positions):
-        overview.plot(*positions.T, color="tab:green", lw=1.2, marker="o", ms=3, label="tour")
+        overview.plot(*positions.T, color="#7048e8", lw=1.2, marker="o", ms=3, label="tour")
         overview.legend(loc="upper left")
-    for k, (p, a) in enumerate(zip(positions, aims, strict=True)):
-        overview.text(*p, str(k + 1), color="tab:red", fontsize=9, weight="bold")
-        close.text(*a, str(k + 1), color="tab:red", fontsize=9, weight="bold")
     # the gaze of each camera, from a part's size away up to its aim point on the part
     lo, hi = mesh.bounds
     size = float(np.linalg.norm(hi - lo))
     _draw_lines(
-        close, [(a - g * 0.6 * size, a) for a, g in zip(aims, gazes, strict=True)], "tab:red", 1.0
+        close, [(a - g * 0.6 * size, a) for a, g in zip(aims, gazes, strict=True)], "#1f6fb2", 1.0
     )
     _fit(overview, np.vstack([mesh.vertices, positions, np.asarray(frusta).reshape(-1, 3)]))
     _fit(close, np.vstack([mesh.vertices, aims - gazes * 0.6 * size]))
+    for ax, points in ((overview, positions), (close, aims)):
+        _numbers(fig, ax, points)
     overview.set_title(
         f"{len(doc.viewpoints)} viewpoints ({doc.target.formulation}, r̄ = "
         f"{doc.target.resolution_mm:g} mm): depth-of-field frusta, visiting order"
@@ -211,6 +278,48 @@ def _frusta(doc: PlanDocument) -> list[tuple[np.ndarray, np.ndarray]]:
             lines += [(q[i], q[(i + 1) % 4]) for i in range(4)]
         lines += [(near[i], far[i]) for i in range(4)]
     return lines
+
+
+def _numbers(fig: Figure, ax: Any, points: np.ndarray) -> None:
+    """Number the 3D points 1… in `ax`, each label at the first free spot near its point
+    (greedy, in display pixels), a thin leader line where it had to move."""
+    from mpl_toolkits.mplot3d import proj3d
+
+    if not len(points):
+        return
+    FigureCanvasAgg(fig).draw()  # type: ignore[no-untyped-call]  # settles the projection
+    x2, y2, _ = proj3d.proj_transform(*points.T, ax.get_proj())
+    anchors = ax.transData.transform(np.column_stack([x2, y2]))
+    placed: list[np.ndarray] = []
+    w, h = 18.0, 13.0  # a label's box in display pixels, with its gap
+    rings = [(0.0, 0.0)] + [
+        (r * w * np.cos(a), r * h * np.sin(a))
+        for r in (1, 2, 3)
+        for a in np.linspace(0, 2 * np.pi, 12, endpoint=False)
+    ]
+    for k, anchor in enumerate(anchors):
+        spot = next(
+            (anchor + d for d in rings if all(
+                abs(anchor[0] + d[0] - q[0]) >= w or abs(anchor[1] + d[1] - q[1]) >= h
+                for q in placed
+            )),
+            anchor,
+        )  # fmt: skip
+        placed.append(spot)
+        moved = bool(np.any(spot != anchor))
+        ax.annotate(
+            str(k + 1),
+            xy=(x2[k], y2[k]),
+            xytext=tuple(spot - anchor) if moved else (0, 0),
+            textcoords="offset pixels",
+            ha="center",
+            va="center",
+            fontsize=8,
+            weight="bold",
+            color="white",
+            bbox={"boxstyle": "round,pad=0.15", "fc": "#1f6fb2", "ec": "none"},
+            arrowprops={"arrowstyle": "-", "color": "#1f6fb2", "lw": 0.6} if moved else None,
+        )
 
 
 def _draw_part(ax: Any, mesh: Any) -> None:
@@ -239,6 +348,8 @@ def _fit(ax: Any, points: np.ndarray) -> None:
     ax.set_ylim(lo[1], hi[1])
     ax.set_zlim(lo[2], hi[2])
     ax.set_box_aspect(np.maximum(hi - lo, 1e-9 + 0.02 * (hi - lo).max()))
+    for axis in (ax.xaxis, ax.yaxis, ax.zaxis):
+        axis.set_major_locator(MaxNLocator(4))
     ax.set_xlabel("x (mm)")
     ax.set_ylabel("y (mm)")
     ax.set_zlabel("z (mm)")
@@ -248,8 +359,9 @@ def _resolution(row: SweepRow | DecimationRow) -> float:
     return row.resolution_mm
 
 
-def _title(what: str, study: Study) -> str:
-    return f"{what}: mesh {study.mesh.id[:12]} ({study.mesh.faces:,} faces)"
+def _title(what: str, study: Study, name: str | None = None) -> str:
+    """`what: name (faces)`, the mesh's id standing in for a name not given."""
+    return f"{what}: {name or 'mesh ' + study.mesh.id[:12]} ({study.mesh.faces:,} faces)"
 
 
 def plan_plots(part: Part, doc: PlanDocument, cloud: CloudStats | None = None) -> dict[str, bytes]:
@@ -267,12 +379,13 @@ def plan_plots(part: Part, doc: PlanDocument, cloud: CloudStats | None = None) -
     return pngs
 
 
-def study_plots(study: Study) -> dict[str, bytes]:
-    """A study's pictures by file name: its curves and, per resolution, the two histograms."""
+def study_plots(study: Study, name: str | None = None) -> dict[str, bytes]:
+    """A study's pictures by file name: its curves and, per resolution, the two histograms.
+    `name`: the mesh file's name for the titles (else its id)."""
     if study.kind == "decimation":
-        pngs = {"decimation.png": decimation_png(study)}
+        pngs = {"decimation.png": decimation_png(study, name)}
     else:
-        pngs = {"sweep.png": sweep_png(study)}
+        pngs = {"sweep.png": sweep_png(study, name)}
     for key in sorted({(getattr(r, "ratio", None), _resolution(r)) for r in study.rows}, key=str):
         rows = [r for r in study.rows if (getattr(r, "ratio", None), _resolution(r)) == key]
         ratio, res = key

@@ -1,0 +1,96 @@
+"""The plots as a person reads them: the viewer's colours, whole numbers of views, no blends."""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+from matplotlib.collections import PolyQuadMesh
+from matplotlib.patches import Rectangle, StepPatch
+
+from tests.test_plan_claims import stepped_part
+from tests.test_studies import RESOLUTIONS, request
+from vpp_core.report.plots import (
+    PALETTE,
+    bin_colours,
+    histogram_figure,
+    rgb,
+    study_plots,
+    sweep_figure,
+)
+from vpp_core.report.studies import resolution_sweep
+
+PALETTE_JS = Path(__file__).resolve().parent.parent / "viewer" / "src" / "palette.js"
+
+
+def _js_array(name: str) -> object:
+    """The JSON value of `NAME = [...]` or `name: [...]` in palette.js."""
+    text = PALETTE_JS.read_text()
+    m = re.search(rf"\b{name}\s*[=:]\s*(\[[\d\s,\[\]]*\])", text)
+    assert m, name
+    return json.loads(m.group(1))
+
+
+def test_the_plots_use_the_viewers_colours() -> None:
+    assert _js_array("MET") == [list(c) for c in PALETTE["met"]]
+    assert _js_array("UNMET") == [list(c) for c in PALETTE["unmet"]]
+    for state in ("uncovered", "uncoverable", "excluded"):
+        assert _js_array(state) == list(PALETTE[state]), state
+
+
+def test_histogram_bins_wear_met_colours_below_the_target_and_unmet_ones_above() -> None:
+    edges = np.linspace(0.0, 0.4, 21)
+    colours = bin_colours(edges, 0.18)
+    met_ramp = [rgb(c) for c in PALETTE["met"]]
+    unmet_ramp = [rgb(c) for c in PALETTE["unmet"]]
+    below = [c for c, hi in zip(colours, edges[1:], strict=True) if hi <= 0.18]
+    above = [c for c, lo in zip(colours, edges[:-1], strict=True) if lo >= 0.2]
+    assert below and above
+    assert all(c[2] > c[0] for c in below)  # blue to green: more blue than red
+    assert all(c[0] > c[2] for c in above)  # yellow to red
+    assert below[0] == pytest.approx(met_ramp[0], abs=0.01)  # the finest bin: the darkest blue
+    assert above[-1] == pytest.approx(unmet_ramp[-1], abs=0.05)  # the worst: darkest red
+
+
+@pytest.fixture(scope="module")
+def sweep():
+    return resolution_sweep(stepped_part(), request(), RESOLUTIONS)
+
+
+def test_the_sweep_counts_whole_views_names_its_part_and_shows_the_area_met(sweep) -> None:
+    fig = sweep_figure(sweep, "bracket.stl")
+    views, area = fig.axes
+    views.figure.canvas.draw()
+    ticks = [t for t in views.get_yticks() if views.get_ylim()[0] <= t <= views.get_ylim()[1]]
+    assert ticks and all(float(t).is_integer() for t in ticks), ticks
+    assert "bracket.stl" in fig.get_suptitle()
+    # no request-target line: every line has as many points as there are resolutions
+    assert all(len(line.get_xdata()) in (0, len(RESOLUTIONS)) for line in views.get_lines())
+    met = {line.get_label(): list(line.get_ydata()) for line in area.get_lines()}
+    for row in sweep.rows:
+        got = met[f"{row.formulation}: area at r* ≤ r̄"]
+        assert 100 * row.resolution.met_area in got
+    # the formulations' markers differ in size, so one never hides the other
+    sizes = {line.get_label(): line.get_markersize() for line in views.get_lines()}
+    assert sizes["density"] != sizes["visibility"]
+
+
+def test_study_histograms_are_outlines_and_a_plan_histogram_is_coloured_by_r(sweep) -> None:
+    rows = [r for r in sweep.rows if r.resolution_mm == RESOLUTIONS[0]]
+    two = histogram_figure([(r.formulation, r.histogram) for r in rows], RESOLUTIONS[0])
+    patches = [p for p in two.axes[0].patches if isinstance(p, StepPatch)]
+    assert len(patches) == 2 and not any(p.get_fill() for p in patches)  # no blended third colour
+    one = histogram_figure([("density", rows[0].histogram)], RESOLUTIONS[0])
+    bars = [p for p in one.axes[0].patches if isinstance(p, Rectangle)]
+    edges = np.asarray(rows[0].histogram.edges_mm)
+    expected = bin_colours(edges, RESOLUTIONS[0])
+    np.testing.assert_allclose([p.get_facecolor()[:3] for p in bars], expected)
+    assert not any(isinstance(c, PolyQuadMesh) for c in one.axes[0].collections)
+
+
+def test_the_plots_render(sweep) -> None:
+    pngs = study_plots(sweep, "bracket.stl")
+    assert all(png.startswith(b"\x89PNG") for png in pngs.values())

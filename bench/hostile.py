@@ -1,11 +1,16 @@
 """How fast the API refuses hostile requests (the figures of docs/reliability.md).
 
     VPP_REDIS_URL=redis://127.0.0.1:6379/13 python -m bench.hostile [--repeat 5]
+    VPP_REDIS_URL=redis://127.0.0.1:6379/13 python -m bench.hostile --served [--only WORD]
 
 In-process (TestClient) against the app on that Redis (nothing is enqueued: every request
 below is refused) and a temporary store. Per case: status, and the median and worst
 wall-clock seconds of the request alone (bodies are built beforehand), and the process's
 peak RSS growth over the whole run. The core mesh cases call `load_mesh` directly.
+
+`--served` runs the issue-34 cases (`bench.hostile_served`) against a real uvicorn server in
+a child process instead: status, media type, body size, seconds, the slowest `/livez` answer
+meanwhile, and the server's peak RSS growth and RSS afterwards.
 """
 
 from __future__ import annotations
@@ -99,7 +104,14 @@ def measure(call: Callable[[], Any], repeat: int) -> tuple[str, list[float]]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=5)
+    parser.add_argument("--served", action="store_true", help="issue-34 cases, real server")
+    parser.add_argument("--only", help="--served: the cases whose name holds this word")
     args = parser.parse_args()
+    if args.served:
+        from bench.hostile_served import run_served
+
+        run_served(args.only)
+        return
     settings = Settings(store_url=tempfile.mkdtemp(), queue="vpp-bench-hostile")
     rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     with TestClient(create_app(settings)) as client:

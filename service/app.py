@@ -1,4 +1,4 @@
-"""The FastAPI application: routers, problem+json errors, upload cap, Redis and store."""
+"""The FastAPI application: routers, problem+json errors, body caps, Redis and store."""
 
 from __future__ import annotations
 
@@ -11,15 +11,13 @@ from fastapi.staticfiles import StaticFiles
 from redis import Redis
 
 from service import auth, idempotency, problems
-from service.limits import JsonBodyLimit
+from service.limits import BodyLimits, JsonChecks
 from service.routers import health, jobs, meshes, metrics, plans, studies, viewer
 from worker.queue import make_queue
 from worker.settings import Settings, get_settings
 from worker.store import open_store
 
 API_VERSION = "1.0.0"
-MULTIPART_SLACK_BYTES = 64 * 1024
-"""Room for the multipart envelope around a file of exactly the upload limit."""
 REDIS_TIMEOUT_S = 10
 """Socket timeouts of the API's Redis connection: a stuck Redis gives 503, not a hung request."""
 
@@ -46,7 +44,6 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         description="Upload a part's mesh, ask for a plan, poll the job, fetch the plan (SPEC §6).",
         generate_unique_id_function=_operation_id,
         lifespan=lifespan,
-        max_body_size=settings.max_upload_bytes + MULTIPART_SLACK_BYTES,
         dependencies=[auth.BEARER],  # OpenAPI only; ApiKeys enforces it
     )
     conn = Redis.from_url(
@@ -54,13 +51,14 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         socket_connect_timeout=REDIS_TIMEOUT_S,
         socket_timeout=REDIS_TIMEOUT_S,
     )
-    app.add_middleware(  # innermost: only requests the keys and the body cap let through
+    app.add_middleware(JsonChecks, settings=settings)  # innermost: JSON validated off the loop
+    app.add_middleware(  # only requests the keys and the body cap let through
         idempotency.Idempotency,
         conn=conn,
         ttl_s=settings.idempotency_ttl_s,
         lock_s=settings.idempotency_lock_s,
     )
-    app.add_middleware(JsonBodyLimit, max_bytes=settings.max_json_bytes)
+    app.add_middleware(BodyLimits, settings=settings)  # caps per route, 415, upload slots
     app.add_middleware(auth.ApiKeys, keys=settings.api_key_list())  # outermost: before bodies
     app.state.settings = settings
     app.state.redis = conn

@@ -10,7 +10,7 @@ body (unparseable JSON or multipart).
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 from fastapi import FastAPI, Request
@@ -19,6 +19,7 @@ from fastapi.responses import JSONResponse
 from redis.exceptions import RedisError
 from starlette.exceptions import HTTPException
 
+from service import routes
 from vpp_core.errors import (
     ForbiddenError,
     LimitError,
@@ -49,6 +50,10 @@ TITLES = {
     413: "Payload too large",
     415: "Unsupported media type",
 }
+MAX_ERRORS = 20
+"""Validation errors listed in a 422 answer; `error_count` says how many there were."""
+MAX_TEXT = 200
+"""Longest loc part or message of a listed validation error (characters)."""
 log = logging.getLogger("vpp.service")
 
 
@@ -83,17 +88,39 @@ async def _vpp_error(request: Request, exc: Exception) -> JSONResponse:
 
 async def _validation(request: Request, exc: Exception) -> JSONResponse:
     assert isinstance(exc, RequestValidationError)
-    errors = [{"loc": list(e["loc"]), "msg": e["msg"], "type": e["type"]} for e in exc.errors()]
-    first = errors[0] if errors else {"loc": [], "msg": "invalid request"}
+    return validation_response(request, exc.errors())
+
+
+def validation_response(request: Request, errors: Sequence[dict[str, Any]]) -> JSONResponse:
+    """The 422 answer to validation errors: the first MAX_ERRORS of them (each loc part and
+    message cut to MAX_TEXT characters) and `error_count`, however many there are."""
+    shown = [
+        {"loc": [_cut(p) for p in e["loc"]], "msg": _cut(e["msg"]), "type": e["type"]}
+        for e in errors[:MAX_ERRORS]
+    ]
+    first = shown[0] if shown else {"loc": [], "msg": "invalid request"}
     detail = f"{'.'.join(str(p) for p in first['loc'])}: {first['msg']}"
-    return problem(request, 422, "Invalid request", detail, errors=errors)
+    if len(errors) > 1:
+        detail += f" (and {len(errors) - 1} more errors)"
+    extra = {"errors": shown, "error_count": len(errors)}
+    return problem(request, 422, "Invalid request", detail, **extra)
+
+
+def _cut(part: Any) -> Any:
+    """A loc part or message, strings cut to MAX_TEXT characters."""
+    if isinstance(part, str) and len(part) > MAX_TEXT:
+        return part[: MAX_TEXT - 3] + "..."
+    return part
 
 
 def http_error_response(request: Request, exc: HTTPException) -> JSONResponse:
-    """The problem+json answer to an HTTPException (also what middleware sends)."""
+    """The problem+json answer to an HTTPException (also what middleware sends); a 405 lists
+    every method the path answers in `Allow` (Starlette names only its first route's)."""
     title = TITLES.get(exc.status_code, "HTTP error")
     response = problem(request, exc.status_code, title, str(exc.detail))
     response.headers.update(exc.headers or {})
+    if exc.status_code == 405 and "app" in request.scope:
+        response.headers["Allow"] = ", ".join(routes.allowed_methods(request.app, request.url.path))
     return response
 
 

@@ -27,11 +27,15 @@ class Settings(BaseSettings):
     max_cloud_points: int = Field(50_000_000, gt=0)
     """Most points of a simulated point cloud (about 16 bytes each in memory and in the PLY)."""
     max_json_bytes: int = Field(2 * 2**20, gt=0)
-    """Largest request body that is not a multipart mesh upload (JSON plan and study requests);
-    bigger bodies get 413 before they are read or parsed. 2 MiB holds `max_candidates` explicit
-    viewpoints with room to spare (about 250 bytes each at full float precision, `up` included),
-    and the most viewpoints it can hold (about 50,000 minimal ones) are refused in about half a
-    second; raise it with `max_candidates`."""
+    """Largest body of any request but a mesh upload, whatever its Content-Type (JSON plan and
+    study requests); bigger bodies get 413 before they are read or parsed. 2 MiB holds
+    `max_candidates` explicit viewpoints with room to spare (about 250 bytes each at full float
+    precision, `up` included); a body with more JSON values than `max_candidates` viewpoints
+    take is refused by counting, unparsed (service/limits.py); raise it with `max_candidates`."""
+    max_uploads: int = Field(2, ge=1)
+    """Mesh uploads the API receives and parses at once; the next waits for a slot with its
+    body unread (503 with Retry-After after 60 s), so the memory of uploads stays bounded (each
+    takes a few times its file size while it is parsed: docs/reliability.md has the figures)."""
     api_keys: SecretStr = SecretStr("")
     """API keys (bearer tokens), comma-separated: `VPP_API_KEYS=key1,key2`. Empty (the default):
     the API is open. Set: every request but /livez, /readyz, /openapi.json, the docs and the

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from functools import partial
 from typing import Annotated
 
@@ -11,6 +12,7 @@ from service import planning
 from service.deps import SettingsDep, StoreDep
 from service.models import MeshSummary, Problem
 from service.routers.plans import named_forever
+from vpp_core.errors import TooLargeError
 
 router = APIRouter(prefix="/v1/meshes", tags=["meshes"])
 ERRORS = {c: {"model": Problem, "content": {"application/problem+json": {}}} for c in (413, 422)}
@@ -53,13 +55,25 @@ def upload_mesh(
     ] = None,
 ) -> MeshSummary:
     """Upload a mesh; the same geometry again gives the same id and stores nothing new."""
-    data = planning.read_upload(file.file, settings.max_upload_bytes)
+    data = read_spooled(file, settings.max_upload_bytes)
     summary = planning.upload_mesh(
         store, settings, data, file.filename, format, units, max_face_area_mm2, remesh_mm
     )
     response.headers["Location"] = f"/v1/meshes/{summary.id}"
     response.headers["ETag"] = f'"{summary.id}"'
     return summary
+
+
+def read_spooled(upload: UploadFile, max_bytes: int) -> bytes:
+    """The uploaded file's bytes, read in one go from the temporary file it was streamed to (one
+    buffer of its size); TooLargeError when it is over `max_bytes`, unread."""
+    spool = upload.file
+    spool.seek(0, os.SEEK_END)
+    size = spool.tell()
+    if size > max_bytes:
+        raise TooLargeError(f"upload of {size} bytes exceeds the limit of {max_bytes} bytes")
+    spool.seek(0)
+    return spool.read(size)
 
 
 @router.get("/{mesh_id}", response_model=MeshSummary, responses={404: {"model": Problem}})

@@ -1,0 +1,174 @@
+"""Issue 34: the hostile requests an outside test found, each refused with a short 4xx problem.
+
+A NaN `up` (was 500), 900 000 invalid viewpoints (was a 17 s stall and a 160 MB answer), a
+multipart body on a JSON route (was read whole), an upload over the cap (was 413 text/plain),
+405 answers naming one route's methods, uploads without a bound on how many run at once.
+"""
+
+from __future__ import annotations
+
+import socket
+import threading
+import time
+from typing import Any
+
+import httpx
+import pytest
+
+from service import limits
+from service.app import create_app
+from tests.conftest import serving
+from tests.test_hostile import FAST, JSON, refused, timed, upload, viewpoints_body
+from vpp_core.samples import sample_stl
+from worker.settings import Settings
+
+ZERO = "0" * 64
+
+
+@pytest.fixture
+def mesh_id(api: Any) -> str:
+    return str(upload(api, sample_stl(), "part.stl").json()["id"])
+
+
+def test_a_nan_up_is_422_not_500(api: Any, mesh_id: str) -> None:
+    view = b'{"position":[0,0,500],"gaze":[0,0,-1],"up":[NaN,1,0]}'
+    body = b'{"mesh_id":"%s","candidates":{"viewpoints":[%s]}}' % (mesh_id.encode(), view)
+    problem = refused(api.post("/v1/plans", content=body, headers=JSON), 422)
+    assert "NaN is not a JSON number" in problem["detail"]
+    infinite = body.replace(b"NaN", b"-Infinity")
+    assert (
+        "Infinity" in refused(api.post("/v1/plans", content=infinite, headers=JSON), 422)["detail"]
+    )
+
+
+def test_900000_invalid_viewpoints_are_refused_by_count(api: Any, mesh_id: str) -> None:
+    body = b'{"mesh_id":"%s","candidates":[%s]}' % (mesh_id.encode(), b",".join([b"1"] * 900_000))
+    r, took = timed(lambda: api.post("/v1/plans", content=body, headers=JSON))
+    assert "JSON values" in refused(r, 422)["detail"]
+    assert len(r.content) < 2000 and took < FAST / 4, (len(r.content), took)
+
+
+def test_validation_errors_are_capped_with_their_count(api: Any, mesh_id: str) -> None:
+    n = 3000  # under the value count: validated, 2 errors ("missing") per item at least
+    body = b'{"mesh_id":"%s","candidates":[%s]}' % (mesh_id.encode(), b",".join([b"{}"] * n))
+    r = api.post("/v1/plans", content=body, headers=JSON)
+    problem = refused(r, 422)
+    assert len(problem["errors"]) == 20 and problem["error_count"] >= n
+    assert len(r.content) < 10_000
+
+
+def test_livez_answers_while_a_big_body_is_validated(svc_env: dict[str, str]) -> None:
+    body = b'{"mesh_id":"%s","candidates":[%s]}' % (ZERO.encode(), b",".join([b"{}"] * 16_000))
+    with serving(create_app(Settings())) as base:
+        worst, answers = 0.0, []
+        poster = threading.Thread(
+            target=lambda: answers.append(
+                httpx.post(base + "/v1/plans", content=body, headers=JSON, timeout=60)
+            )
+        )
+        poster.start()
+        with httpx.Client() as client:
+            while poster.is_alive():
+                start = time.perf_counter()
+                assert client.get(base + "/livez").status_code == 200
+                worst = max(worst, time.perf_counter() - start)
+        poster.join()
+    refused(answers[0], 422)
+    assert worst < 0.5, f"/livez took {worst:.2f} s while the body was validated"
+
+
+@pytest.mark.parametrize("path", ["/v1/plans", "/v1/studies"])
+def test_a_non_json_body_on_a_json_route_is_415_unread(api: Any, path: str) -> None:
+    read = 0
+
+    def body() -> Any:
+        nonlocal read
+        for _ in range(200):
+            read += 1
+            yield b"x" * 2**20
+
+    headers = {"content-type": "multipart/form-data; boundary=x"}
+    refused(api.post(path, content=body(), headers=headers), 415)
+    assert read <= 2
+    for media in ("text/plain", "application/xml", "application/x-www-form-urlencoded"):
+        refused(api.post(path, content=b"{}", headers={"content-type": media}), 415)
+
+
+def test_a_json_body_on_the_upload_route_is_415(api: Any) -> None:
+    refused(api.post("/v1/meshes", content=b'{"file": "x"}', headers=JSON), 415)
+
+
+def test_an_upload_over_the_cap_is_413_problem_json(svc_env: dict[str, str]) -> None:
+    from fastapi.testclient import TestClient
+
+    with TestClient(create_app(Settings(max_upload_bytes=100_000))) as small:
+        data = b"\0" * 300_000
+        problem = refused(upload(small, data, "big.stl"), 413)
+        assert "VPP_MAX_UPLOAD_BYTES" in problem["detail"]
+
+        def stream() -> Any:
+            for _ in range(4):
+                yield b"\0" * 100_000
+
+        headers = {"content-type": "multipart/form-data; boundary=x"}
+        refused(small.post("/v1/meshes", content=stream(), headers=headers), 413)
+
+
+def test_405_lists_every_method_of_the_path(api: Any) -> None:
+    r = api.put(f"/v1/jobs/{ZERO}")
+    refused(r, 405)
+    assert set(r.headers["allow"].split(", ")) == {"GET", "DELETE"}
+    r = api.put(f"/v1/plans/{ZERO}/point-cloud")
+    assert set(r.headers["allow"].split(", ")) == {"GET", "POST"}
+
+
+def test_uploads_at_once_are_bounded(
+    svc_env: dict[str, str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """With max_uploads=1, an upload whose body is still coming keeps the next one waiting,
+    unread, and out (503) once the wait is over."""
+    monkeypatch.setattr(limits, "UPLOAD_WAIT_S", 0.5)
+    with serving(create_app(Settings(max_uploads=1))) as base:
+        host, port = base.removeprefix("http://").split(":")
+        with socket.create_connection((host, int(port))) as slow:
+            slow.sendall(
+                b"POST /v1/meshes HTTP/1.1\r\nHost: x\r\nContent-Length: 100000\r\n"
+                b"Content-Type: multipart/form-data; boundary=b\r\n\r\n--b\r\n"
+            )
+            time.sleep(0.3)  # the first upload holds the slot, its body unfinished
+            r = httpx.post(base + "/v1/meshes", files={"file": ("p.stl", sample_stl())})
+            assert "Retry-After" in r.headers
+            refused_busy = r.status_code, r.headers["content-type"]
+        assert refused_busy == (503, "application/problem+json")
+        r = httpx.post(base + "/v1/meshes", files={"file": ("p.stl", sample_stl())})
+        assert r.status_code == 201, r.text
+
+
+def test_an_upload_is_read_once_from_its_temporary_file() -> None:
+    """One buffer of the file's size (the chunks and their join took twice it)."""
+    import tempfile
+    import tracemalloc
+
+    from fastapi import UploadFile
+
+    from service.routers.meshes import read_spooled
+
+    size = 20 * 2**20
+    with tempfile.SpooledTemporaryFile(max_size=2**20) as spool:
+        for _ in range(20):
+            spool.write(b"\0" * 2**20)
+        tracemalloc.start()
+        try:
+            data = read_spooled(UploadFile(spool), size)  # type: ignore[arg-type]
+            peak = tracemalloc.get_traced_memory()[1]
+        finally:
+            tracemalloc.stop()
+    assert len(data) == size and peak < 1.2 * size, f"{peak / size:.1f} x the file"
+
+
+def test_the_values_count_follows_max_candidates(svc_env: dict[str, str]) -> None:
+    from fastapi.testclient import TestClient
+
+    with TestClient(create_app(Settings(max_candidates=10))) as small:
+        r = small.post("/v1/plans", content=viewpoints_body(ZERO, 200), headers=JSON)
+        assert "JSON values" in refused(r, 422)["detail"]

@@ -2,7 +2,7 @@
 
     python bench/viewer.py [MESH] [--units mm] [--candidates 500] [--resolution 0.18]
                            [--formulation density|visibility] [--fit-part]
-                           [--repeat 3] [--screenshot docs/viewer.png] [--redis-url URL]
+                           [--repeat 3] [--screenshot shot.png] [--redis-url URL]
 
 Plans MESH (default: the sample bushing) through the API (uvicorn on loopback, one RQ worker,
 paper sensor), then per repetition opens /v1/plans/{id}/view in a fresh browser context (no
@@ -10,7 +10,9 @@ cache) and measures:
 
 - `open_s`: navigation to `vppViewer.ready` (plan document, geometry and scene fetched,
   parsed and drawn); `page_load_s` the same from the page's own clock;
-- the bytes of the two binary resources, the scene also as sent (gzipped);
+- the bytes of the bundle and the two binary resources, whole and as sent (gzipped);
+- `part_share`: the part's projected box over the canvas (the larger of width and height
+  shares) as the page opens; `labels_shown`: camera numbers on screen, none over another;
 - `select_ms`: one camera selected (the part recoloured) and drawn;
 - `frame_ms`: mean over a full orbit of 60 drawn frames; `frame_ms_no_labels` with the number
   labels hidden. Chromium runs WebGL on SwiftShader (the CPU) here: a GPU draws faster.
@@ -154,6 +156,13 @@ def measure(browser, url, plan, doc, sizes, plan_s, name, rep, args) -> None:  #
     page.goto(f"{url}/v1/plans/{plan}/view")
     page.wait_for_function("window.vppViewer && window.vppViewer.ready", timeout=300_000)
     open_s = time.perf_counter() - t0
+    framing = page.evaluate(
+        "(() => { const b = window.vppViewer.partBox();"
+        " const c = document.getElementById('canvas');"
+        " return {share: Math.max((b[2] - b[0]) / c.clientWidth,"
+        " (b[3] - b[1]) / c.clientHeight),"
+        " labels: Object.keys(window.vppViewer.labelBoxes()).length}; })()"
+    )
     select_ms = page.evaluate(
         "async () => { const t = performance.now(); window.vppViewer.select(0);"
         " await window.vppViewer.drawn(); return performance.now() - t; }"
@@ -176,6 +185,8 @@ def measure(browser, url, plan, doc, sizes, plan_s, name, rep, args) -> None:  #
         "plan_s": round(plan_s, 2),
         **sizes,
         "open_s": round(open_s, 3),
+        "part_share": round(framing["share"], 3),
+        "labels_shown": framing["labels"],
         "page_load_s": page.evaluate("window.vppViewer.loadSeconds"),
         "select_ms": round(select_ms, 1),
         "frame_ms": round(frame_ms, 1),

@@ -14,6 +14,7 @@ const DIM_MIX = 0.72;
 const GLYPH = 0.25; // a camera glyph is a pyramid this many part diagonals deep (≤ near_mm)
 const FIT_MARGIN = 0.1; // share of the canvas left around what `fit` frames
 const FIT_POINTS = 20000;
+const AIM_FACES = 2000; // faces per camera searched for its aim point (evenly spread)
 const PIN_PX = 9; // camera pins, drawn and picked in screen pixels
 const PICK_PX = 8;
 const LINEAR = Float32Array.from({ length: 256 }, (_, i) => {
@@ -90,7 +91,8 @@ export class PlanScene {
   }
 
   /** Where viewpoint k looks on the part: the centre of the face it sees nearest its central
-   * ray (the point at the working distance along its gaze when it sees none). */
+   * ray, among up to AIM_FACES of them (the point at the working distance along its gaze when
+   * it sees none). */
   aimPoint(k) {
     const v = this.viewpoints[k];
     const p = new THREE.Vector3(...v.position);
@@ -99,7 +101,10 @@ export class PlanScene {
     let best = p.clone().addScaledVector(g, wd);
     let bestD = Infinity;
     const c = new THREE.Vector3();
-    for (const f of this.facesOf(k)) {
+    const faces = this.facesOf(k);
+    const stride = Math.ceil(faces.length / AIM_FACES);
+    for (let i = 0; i < faces.length; i += stride) {
+      const f = faces[i];
       c.fromArray(this.centroids, 3 * f).sub(p);
       const along = c.dot(g);
       const d = c.addScaledVector(g, -along).lengthSq();

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import gzip
 import hashlib
+from collections.abc import Callable
 from functools import cache, partial
 from pathlib import Path
 from typing import Annotated, Any
@@ -86,8 +87,16 @@ def get_plan_scene(
 ) -> Response:
     """Per-face achieved resolution and state, and the faces each viewpoint sees (binary)."""
     gzipped = _accepts_gzip(accept_encoding)
-    scene = partial(_scene, store, plan_id, gzipped)
-    response = named_forever((plan_id, "plan"), if_none_match, scene, OCTETS)
+    return _binary(
+        (plan_id, "plan"), if_none_match, partial(_scene, store, plan_id, gzipped), gzipped
+    )
+
+
+def _binary(
+    content: tuple[str, str], if_none_match: str | None, body: Callable[[], bytes], gzipped: bool
+) -> Response:
+    """`named_forever` binary answer whose `body` is gzipped when `gzipped`, so labelled."""
+    response = named_forever(content, if_none_match, body, OCTETS)
     response.headers["Vary"] = "Accept-Encoding"
     if gzipped and response.status_code == 200:
         response.headers["Content-Encoding"] = "gzip"
@@ -110,11 +119,7 @@ def get_mesh_geometry(
     """The mesh's vertices (float32 mm) and faces (uint32), for drawing (binary)."""
     gzipped = _accepts_gzip(accept_encoding)
     geometry = partial(_geometry, store, mesh_id, gzipped)
-    response = named_forever((mesh_id, "mesh"), if_none_match, geometry, OCTETS)
-    response.headers["Vary"] = "Accept-Encoding"
-    if gzipped and response.status_code == 200:
-        response.headers["Content-Encoding"] = "gzip"
-    return response
+    return _binary((mesh_id, "mesh"), if_none_match, geometry, gzipped)
 
 
 def _geometry(store: StoreDep, mesh_id: str, gzipped: bool) -> bytes:

@@ -10,7 +10,7 @@ from fastapi.routing import APIRoute
 from fastapi.staticfiles import StaticFiles
 from redis import Redis
 
-from service import auth, idempotency, problems
+from service import auth, fairuse, idempotency, problems
 from service.limits import BodyLimits, JsonChecks
 from service.routers import health, jobs, meshes, metrics, plans, studies, viewer
 from worker.queue import make_queue
@@ -59,6 +59,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         lock_s=settings.idempotency_lock_s,
     )
     app.add_middleware(BodyLimits, settings=settings)  # caps per route, 415, upload slots
+    app.add_middleware(fairuse.FairUse, conn=conn, settings=settings)  # POST rate, bodies unread
     app.add_middleware(auth.ApiKeys, keys=settings.api_key_list())  # outermost: before bodies
     app.state.settings = settings
     app.state.redis = conn

@@ -4,7 +4,7 @@
 is `application/problem+json` with the `Problem` schema (FastAPI would document
 `application/json`, and its own 422 shape), and every operation lists the errors any request
 can get: 401/403 (API keys), 413 (body cap), 503 (Redis or store down), 400 where it takes a
-body (unparseable JSON or multipart).
+body (unparseable JSON or multipart), 429 on POSTs (fair use).
 """
 
 from __future__ import annotations
@@ -49,6 +49,7 @@ TITLES = {
     405: "Method not allowed",
     413: "Payload too large",
     415: "Unsupported media type",
+    429: "Too many requests",
 }
 MAX_ERRORS = 20
 """Validation errors listed in a 422 answer; `error_count` says how many there were."""
@@ -155,6 +156,12 @@ EVERY_OPERATION = {
 """Errors any request can get, whatever the operation."""
 WITH_BODY = {"400": "The body cannot be parsed (JSON or multipart)"}
 """Errors of operations that take a body."""
+POSTS = {
+    "429": "Fair use: too many POST requests (VPP_RATE_LIMIT per VPP_RATE_WINDOW_S) or, on job "
+    "submissions, too many queued and running jobs (VPP_MAX_ACTIVE_JOBS); retry after "
+    "Retry-After seconds"
+}
+"""Errors of POST operations (service.fairuse)."""
 VALIDATION_SCHEMAS = ("HTTPValidationError", "ValidationError")
 """FastAPI's 422 schemas, replaced by Problem (its `errors` member)."""
 
@@ -162,9 +169,10 @@ VALIDATION_SCHEMAS = ("HTTPValidationError", "ValidationError")
 def document_problems(doc: dict[str, Any]) -> dict[str, Any]:
     """Rewrite an OpenAPI document in place: error responses as problem+json (see module)."""
     for path_item in doc.get("paths", {}).values():
-        for operation in path_item.values():
+        for method, operation in path_item.items():
             responses = operation.setdefault("responses", {})
             extra = {**EVERY_OPERATION, **(WITH_BODY if "requestBody" in operation else {})}
+            extra.update(POSTS if method == "post" else {})
             for code, description in extra.items():
                 responses.setdefault(code, {"description": description})
             for code, response in responses.items():

@@ -1,17 +1,41 @@
-"""What every job submission does around the job itself: check its callback URL before
-anything is queued, then index the job under its caller (the listing) and register the
-callback (webhooks), telling it at once when the job has already ended."""
+"""What every job submission does around the job itself: check its callback URL and reserve
+one of the caller's job slots (fair use) before anything is queued, then index the job under
+its caller (the listing) and register the callback (webhooks), telling it at once when the job
+has already ended."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 from fastapi import Request
 
+from service import fairuse
 from service.callers import caller
 from service.jobmodels import Callback
 from vpp_core.errors import NotFoundError
 from worker import joblist, metrics, webhooks
 from worker import queue as jobs
 from worker.settings import Settings
+
+
+def submit(
+    request: Request,
+    kind: joblist.Kind,
+    callback: Callback | None,
+    enqueue: Callable[[], tuple[str, str | None]],
+) -> str:
+    """Submit a job of `kind`: `enqueue()` queues it and gives (job id, mesh id), within one of
+    the caller's job slots (429 when none is free; freed again when `enqueue` raises)."""
+    check_callback(request, callback)
+    token = fairuse.reserve(request)
+    try:
+        job_id, mesh_id = enqueue()
+    except BaseException:
+        fairuse.release(request, token)
+        raise
+    fairuse.hold(request, token, job_id)
+    register(request, job_id, kind, mesh_id, callback)
+    return job_id
 
 
 def check_callback(request: Request, callback: Callback | None) -> None:

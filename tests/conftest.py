@@ -127,6 +127,9 @@ def svc_env(
         "VPP_THREADS": "1",
         "VPP_RETRY_AFTER_S": "1",
         "VPP_QUEUE": f"vpp-test-{os.getpid()}",  # two test runs at once do not share jobs
+        # fair use off but where a test sets it (tests/test_fairuse.py): loads come from one address
+        "VPP_RATE_LIMIT": str(10**9),
+        "VPP_MAX_ACTIVE_JOBS": str(10**9),
     }
     for k, v in env.items():
         monkeypatch.setenv(k, v)

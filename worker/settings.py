@@ -96,12 +96,13 @@ class Settings(BaseSettings):
     """Wait before the first retry of an undelivered webhook (s); each next wait doubles."""
     callback_max_age_s: int = Field(86_400, ge=1)
     """How long an undelivered webhook is retried (s): the retry waits add up to this."""
-    rate_limit: int = Field(60, ge=1)
-    """Job submissions (plans, studies, point clouds) one API key may make per `rate_window_s`
-    (per client address when the API is open); more get 429 with Retry-After."""
+    rate_limit: int = Field(120, ge=1)
+    """POST requests (uploads, plans, studies, point clouds) one API key may make per
+    `rate_window_s` (per client address when the API is open); more get 429 with Retry-After,
+    unread. Counted in Redis, so shared by every API process (service/fairuse.py)."""
     rate_window_s: int = Field(60, ge=1)
-    """The window of `rate_limit` (s)."""
-    max_active_jobs: int = Field(10, ge=1)
+    """The window of `rate_limit` (s): it opens at a caller's first POST."""
+    max_active_jobs: int = Field(20, ge=1)
     """Queued and running jobs one API key (or address) may have at once; a submission past it
     gets 429 with Retry-After, so one client cannot fill the queue and starve the others."""
     log_format: Literal["text", "json"] | None = None

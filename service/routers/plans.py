@@ -12,6 +12,7 @@ from service.deps import QueueDep, SettingsDep, StoreDep
 from service.jobmodels import CloudSubmit
 from service.models import JobAccepted, PlanSubmit, Problem
 from vpp_core.plan.document import PlanDocument
+from vpp_core.report.export import Frame, Unit, poses_csv, poses_json
 from vpp_core.report.pointcloud import CloudStats
 from worker import artifacts as art
 
@@ -35,9 +36,12 @@ def submit_plan(
     settings: SettingsDep,
 ) -> JobAccepted:
     """Plan a mesh; identical requests share one job and one result (the plan id is their hash)."""
-    submissions.check_callback(request, body.callback)
-    plan = planning.submit_plan(store, queue, settings, body)
-    submissions.register(request, plan, "plan", body.mesh_id, body.callback)
+    plan = submissions.submit(
+        request,
+        "plan",
+        body.callback,
+        lambda: (planning.submit_plan(store, queue, settings, body), body.mesh_id),
+    )
     return accepted(plan, response, store, queue, settings)
 
 
@@ -98,6 +102,40 @@ def get_plan_plot(plan_id: str, name: str, store: StoreDep) -> Response:
     return Response(data, media_type="image/png", headers={"Cache-Control": IMMUTABLE})
 
 
+def _poses(
+    plan_id: str, store: StoreDep, body: Callable[[PlanDocument], str], media: str
+) -> Response:
+    """The stored plan's poses written by `body` (404 while the plan is not computed)."""
+    doc = PlanDocument.model_validate_json(planning.plan_json(store, plan_id))
+    return Response(body(doc), media_type=media, headers={"Cache-Control": IMMUTABLE})
+
+
+@router.get(
+    "/{plan_id}/poses.csv",
+    response_class=Response,
+    responses={200: {"content": {"text/csv": {}}}, 404: {"model": Problem}},
+)
+def get_poses_csv(
+    plan_id: str, store: StoreDep, unit: Unit = "mm", frame: Frame = "cell"
+) -> Response:
+    """The poses in visiting order for the cell: CSV `index,x,y,z,qw,qx,qy,qz` in `unit`
+    (quaternion of camera_to_world). Frame `cell` is the part frame until setup lands."""
+    return _poses(plan_id, store, lambda doc: poses_csv(doc, unit), "text/csv")
+
+
+@router.get(
+    "/{plan_id}/poses.json",
+    response_class=Response,
+    responses={200: {"content": {"application/json": {}}}, 404: {"model": Problem}},
+)
+def get_poses_json(
+    plan_id: str, store: StoreDep, unit: Unit = "mm", frame: Frame = "cell"
+) -> Response:
+    """The poses in visiting order as {position {x,y,z}, orientation {w,x,y,z}} in `unit`,
+    with home and cycle time. Frame `cell` is the part frame until setup lands."""
+    return _poses(plan_id, store, lambda doc: poses_json(doc, unit, frame), "application/json")
+
+
 @router.post(
     "/{plan_id}/point-cloud",
     status_code=202,
@@ -115,10 +153,12 @@ def submit_point_cloud(
 ) -> JobAccepted:
     """Simulate the plan's point cloud (one point per valid ray of its viewpoints) as a job."""
     callback = body.callback if body else None
-    submissions.check_callback(request, callback)
-    cloud = planning.submit_cloud(store, queue, settings, plan_id)
-    mesh_id, _ = art.get_request(store, plan_id)
-    submissions.register(request, cloud, "point-cloud", mesh_id, callback)
+
+    def enqueue() -> tuple[str, str | None]:
+        cloud = planning.submit_cloud(store, queue, settings, plan_id)
+        return cloud, art.get_request(store, plan_id)[0]
+
+    cloud = submissions.submit(request, "point-cloud", callback, enqueue)
     return accepted(cloud, response, store, queue, settings)
 
 

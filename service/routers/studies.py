@@ -30,9 +30,12 @@ def submit_study(
     settings: SettingsDep,
 ) -> JobAccepted:
     """Run a resolution sweep or a decimation study; identical requests share one job."""
-    submissions.check_callback(request, body.callback)
-    study = planning.submit_study(store, queue, settings, body)
-    submissions.register(request, study, "study", body.mesh_id, body.callback)
+    study = submissions.submit(
+        request,
+        "study",
+        body.callback,
+        lambda: (planning.submit_study(store, queue, settings, body), body.mesh_id),
+    )
     return accepted(study, response, store, queue, settings)
 
 

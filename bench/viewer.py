@@ -1,7 +1,8 @@
 """How fast the plan viewer opens and draws a real plan, in headless Chromium.
 
     python bench/viewer.py [MESH] [--units mm] [--candidates 500] [--resolution 0.18]
-                           [--formulation density|visibility] [--fit-part]
+                           [--formulation density|visibility] [--fit-part] [--tilt 0]
+                           [--bundles OLD.js NEW.js]
                            [--repeat 3] [--screenshot shot.png] [--redis-url URL]
 
 Plans MESH (default: the sample bushing) through the API (uvicorn on loopback, one RQ worker,
@@ -14,10 +15,14 @@ cache) and measures:
 - `part_share`: the part's projected box over the canvas (the larger of width and height
   shares) as the page opens; `labels_shown`: camera numbers on screen, none over another;
 - `select_ms`: one camera selected (the part recoloured) and drawn;
-- `frame_ms`: mean over a full orbit of 60 drawn frames; `frame_ms_no_labels` with the number
-  labels hidden. Chromium runs WebGL on SwiftShader (the CPU) here: a GPU draws faster.
+- `frame_ms`: mean over a full orbit of 60 drawn frames as the page opens (the part framed);
+  `frame_ms_no_labels` with the number labels hidden; `frame_ms_fit_all` after *fit all* (the
+  part small among its cameras: fewer pixels to fill). Chromium runs WebGL on SwiftShader
+  (the CPU) here: a GPU draws faster.
 
-One JSON line per repetition on stdout. --screenshot saves the page with the camera looking
+One JSON line per repetition on stdout; with --bundles, the repetitions of each bundle in turn
+on the same plan (an A/B of two builds: `VPP_VIEWER_OUT=/tmp/old.js npm run build` in an old
+checkout of viewer/). --screenshot saves the page with the camera looking
 most nearly the eye's way selected (--fit-part: the part framed, not the whole scene).
 
 Redis: redis://127.0.0.1:6379/11 (db 11 flushed before and after) or --redis-url.
@@ -56,9 +61,26 @@ def main() -> None:
     ap.add_argument("--screenshot")
     ap.add_argument("--fit-part", action="store_true", help="screenshot framing the part only")
     ap.add_argument("--redis-url", default="redis://127.0.0.1:6379/11")
+    ap.add_argument("--bundles", nargs="+", type=Path, metavar="JS",
+                    help="viewer bundles to compare on the same plan, in turn (A/B)")  # fmt: skip
     args = ap.parse_args()
     with served_plan(args) as (url, plan, doc):
-        run(args, url, plan, doc)
+        for bundle in args.bundles or [None]:
+            if bundle is not None:
+                serve_bundle(bundle)
+                print(f"# bundle {bundle}", flush=True)
+            run(args, url, plan, doc)
+
+
+def serve_bundle(path: Path) -> None:
+    """Serve `path` as /static/viewer/viewer.js from now on (an older build, say)."""
+    import gzip
+
+    from service.routers import viewer
+
+    data = path.read_bytes()
+    answer = (data, gzip.compress(data, 9, mtime=0), f'"{path.stat().st_mtime_ns}"')
+    viewer._bundle = lambda name: answer  # type: ignore[assignment]
 
 
 @contextmanager
@@ -118,8 +140,10 @@ def _plan(url: str, args: argparse.Namespace) -> tuple[str, dict[str, Any]]:
     body = {"mesh_id": r.json()["id"], "candidates": candidates, "target": target}
     plan = client.post("/v1/plans", json=body).json()["id"]
     t0 = time.perf_counter()
-    while client.get(f"/v1/jobs/{plan}").json()["status"] in ("queued", "running"):
+    while (job := client.get(f"/v1/jobs/{plan}").json())["status"] in ("queued", "running"):
         time.sleep(0.5)
+    if job["status"] != "succeeded":
+        raise SystemExit(f"the plan's job {job['status']}: {job.get('error')}")
     doc = client.get(f"/v1/plans/{plan}").json()
     return plan, {**doc, "plan_s": time.perf_counter() - t0, "file_name": name}
 
@@ -157,7 +181,8 @@ def measure(browser, url, plan, doc, sizes, plan_s, name, rep, args) -> None:  #
     page.wait_for_function("window.vppViewer && window.vppViewer.ready", timeout=300_000)
     open_s = time.perf_counter() - t0
     framing = page.evaluate(
-        "(() => { const b = window.vppViewer.partBox();"
+        "(() => { if (!window.vppViewer.partBox) return {share: NaN, labels: null};"
+        " const b = window.vppViewer.partBox();"
         " const c = document.getElementById('canvas');"
         " return {share: Math.max((b[2] - b[0]) / c.clientWidth,"
         " (b[3] - b[1]) / c.clientHeight),"
@@ -171,6 +196,8 @@ def measure(browser, url, plan, doc, sizes, plan_s, name, rep, args) -> None:  #
     page.evaluate("window.vppViewer.show('labels', false)")
     bare_ms = page.evaluate("window.vppViewer.orbit(60)")
     page.evaluate("window.vppViewer.show('labels', true)")
+    page.evaluate("window.vppViewer.fit(true)")  # the part small among its cameras
+    fit_all_ms = page.evaluate("window.vppViewer.orbit(60)")
     if args.screenshot and rep == 0:  # the camera looking most nearly the eye's way, selected
         page.evaluate("window.vppViewer.orbit(8)")
         if args.fit_part:
@@ -191,6 +218,7 @@ def measure(browser, url, plan, doc, sizes, plan_s, name, rep, args) -> None:  #
         "select_ms": round(select_ms, 1),
         "frame_ms": round(frame_ms, 1),
         "frame_ms_no_labels": round(bare_ms, 1),
+        "frame_ms_fit_all": round(fit_all_ms, 1),
         "console_errors": errors,
     }
     print(json.dumps(line), flush=True)

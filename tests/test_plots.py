@@ -94,3 +94,18 @@ def test_study_histograms_are_outlines_and_a_plan_histogram_is_coloured_by_r(swe
 def test_the_plots_render(sweep) -> None:
     pngs = study_plots(sweep, "bracket.stl")
     assert all(png.startswith(b"\x89PNG") for png in pngs.values())
+
+
+def test_camera_numbers_sit_where_the_central_ray_meets_the_part() -> None:
+    """cameras.png's close-up numbers each camera at its aim point on the part, not at the
+    working distance along its gaze (off the part for a tilted or nearer camera)."""
+    import trimesh
+
+    from vpp_core.report.plots import _aim_points
+
+    box = trimesh.creation.box(extents=(10.0, 10.0, 10.0))
+    positions = np.array([[0.0, 0.0, 100.0], [0.0, 0.0, 100.0]])
+    gazes = np.array([[0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])  # the second misses the box
+    aims = _aim_points(box, positions, gazes, wd=300.0)
+    np.testing.assert_allclose(aims[0], [0.0, 0.0, 5.0], atol=1e-9)  # the top face
+    assert np.abs(aims[1]).max() <= 5.0 + 1e-9  # on the box, not 300 mm away

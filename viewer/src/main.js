@@ -77,8 +77,8 @@ async function load(plan) {
   const colours = faceColours(a.state, a.resolution_mm, scale);
   const first = state.shown === undefined;
   Object.assign(state, { plan, doc, scene, shown: plan });
+  Object.assign(view, { problems: $('problems').checked, states: a.state }); // painted once, next
   view.setPlan(colours, doc.viewpoints, doc.sensor, a.view_offsets, a.view_faces);
-  view.setProblemsOnly($('problems').checked, a.state);
   if (first) view.fit(false);
   $('summary').classList.remove('pending');
   summary(doc);

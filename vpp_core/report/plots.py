@@ -229,7 +229,8 @@ def neighbours_png(stats: CloudStats, title: str = "") -> bytes:
 
 def cameras_png(part: Part, doc: PlanDocument) -> bytes:
     """Left: the part and the selected cameras' depth-of-field frusta, numbered in visiting
-    order, with the tour. Right: close-up of the part, each camera's gaze and aim point."""
+    order, with the tour. Right: close-up of the part, each camera's gaze and the point where
+    its central ray meets the part, numbered."""
     fig = Figure(figsize=(13, 6.2))
     overview = fig.add_subplot(1, 2, 1, projection="3d")
     close = fig.add_subplot(1, 2, 2, projection="3d")
@@ -239,7 +240,7 @@ def cameras_png(part: Part, doc: PlanDocument) -> bytes:
     frusta = _frusta(doc)
     positions = np.array([vp.position for vp in doc.viewpoints]).reshape(-1, 3)
     gazes = np.array([vp.gaze for vp in doc.viewpoints]).reshape(-1, 3)
-    aims = positions + gazes * doc.sensor.working_distance
+    aims = _aim_points(mesh, positions, gazes, doc.sensor.working_distance)
     for ax in (overview, close):
         _draw_part(ax, mesh)
     _draw_lines(overview, frusta, "#1f6fb2", 0.5)
@@ -278,6 +279,20 @@ def _frusta(doc: PlanDocument) -> list[tuple[np.ndarray, np.ndarray]]:
             lines += [(q[i], q[(i + 1) % 4]) for i in range(4)]
         lines += [(near[i], far[i]) for i in range(4)]
     return lines
+
+
+def _aim_points(mesh: Any, positions: np.ndarray, gazes: np.ndarray, wd: float) -> np.ndarray:
+    """(K, 3) mm: where each camera's central ray first meets the mesh, else the face centre
+    nearest the point at the working distance `wd` (mm) along its gaze."""
+    from scipy.spatial import cKDTree
+
+    aims = positions + gazes * wd
+    if len(aims):
+        centres = mesh.triangles_center
+        aims = centres[cKDTree(centres).query(aims)[1]]
+        hits, rays, _ = mesh.ray.intersects_location(positions, gazes, multiple_hits=False)
+        aims[rays] = hits
+    return np.asarray(aims, float).reshape(-1, 3)
 
 
 def _numbers(fig: Figure, ax: Any, points: np.ndarray) -> None:
@@ -319,6 +334,8 @@ def _numbers(fig: Figure, ax: Any, points: np.ndarray) -> None:
             color="white",
             bbox={"boxstyle": "round,pad=0.15", "fc": "#1f6fb2", "ec": "none"},
             arrowprops={"arrowstyle": "-", "color": "#1f6fb2", "lw": 0.6} if moved else None,
+            zorder=1000,  # above the part, whatever depth order mplot3d gives its collections
+            annotation_clip=False,
         )
 
 

@@ -330,9 +330,12 @@ def _assert_legible(boxes: dict[str, list[float]], canvas: dict[str, float]) -> 
         assert ax + aw <= bx or bx + bw <= ax or ay + ah <= by or by + bh <= ay, (a, b)
 
 
-def test_the_page_opens_on_the_part_with_every_number_legible(live, browser) -> None:
+def test_the_page_opens_legible_and_leaves_nothing_behind(live, browser) -> None:
     """The part fills a good share of the canvas; every camera's number is on screen, on the
-    part where it looks, and clear of the others; so after *fit all* and an orbit."""
+    part where it looks, and clear of the others, so after *fit all* and an orbit. Looking
+    through a camera shows it alone and says which; *clear* leaves no frame, caption, slider
+    place or hidden camera behind. The summary keeps numbers with their units and explains
+    its jargon (one plan for the three: browser tests are costly)."""
     client, url = live
     _, plan, doc = planned(client)
     page = Page(browser, f"{url}/v1/plans/{plan}/view")
@@ -349,21 +352,19 @@ def test_the_page_opens_on_the_part_with_every_number_legible(live, browser) -> 
     _assert_legible(boxes, canvas)
     page.js("window.vppViewer.orbit(7)")
     _assert_legible(_label_layout(page)[0], canvas)
+    _look_then_clear(page, len(doc["viewpoints"]))
+    _summary_text(page)
     assert page.errors == []
 
 
-def test_looking_through_shows_that_camera_alone_and_clear_leaves_nothing_behind(
-    live, browser
-) -> None:
-    client, url = live
-    _, plan, doc = planned(client)
-    page = Page(browser, f"{url}/v1/plans/{plan}/view")
+def _look_then_clear(page: Page, n_views: int) -> None:
+    """Look through camera 2, then clear the selection: what each leaves on the page."""
     page.page.locator(".cam-label[data-k='1']").click()
     page.page.locator("#look").click()
     page.drawn()
     assert page.page.locator("#frame").is_visible()
     caption = page.page.locator("#through").inner_text()
-    assert f"viewpoint 2 of {len(doc['viewpoints'])}" in caption, caption
+    assert f"viewpoint 2 of {n_views}" in caption, caption
     assert page.js("window.vppViewer.labelBoxes()") == {}  # no other camera's number
     assert page.js("window.vppViewer.drawnCameras()") == {"frusta": False, "tour": False}
     page.page.locator("#clear").click()
@@ -373,8 +374,7 @@ def test_looking_through_shows_that_camera_alone_and_clear_leaves_nothing_behind
     assert page.page.locator("#step").input_value() == "0"
     assert page.page.locator("#look").is_disabled()
     assert page.js("window.vppViewer.drawnCameras()") == {"frusta": True, "tour": True}
-    assert len(page.js("window.vppViewer.labelBoxes()")) == len(doc["viewpoints"])
-    assert page.errors == []
+    assert len(page.js("window.vppViewer.labelBoxes()")) == n_views
 
 
 def test_colours_spread_over_the_plans_range_and_problems_only_pales_the_rest(
@@ -406,10 +406,8 @@ def test_colours_spread_over_the_plans_range_and_problems_only_pales_the_rest(
     assert page.errors == []
 
 
-def test_the_summary_keeps_numbers_with_their_units_and_explains_its_jargon(live, browser) -> None:
-    client, url = live
-    _, plan, _ = planned(client)
-    page = Page(browser, f"{url}/v1/plans/{plan}/view")
+def _summary_text(page: Page) -> None:
+    """No number parted from its unit, no label over two lines, the jargon explained."""
     import re
 
     cells = page.page.locator("#metrics td").all_inner_texts()

@@ -12,6 +12,7 @@ import uvicorn
 
 from service.app import create_app
 from vpp_core.errors import VppError
+from worker import logs
 from worker.embedded import EmbeddedRedis
 from worker.pool import WorkerPool
 from worker.settings import get_settings
@@ -38,7 +39,8 @@ def run_serve(args: argparse.Namespace) -> int:
         # uvicorn re-raises SIGTERM after its graceful shutdown: make that an exit that
         # unwinds the stack (workers stopped, embedded Redis shut down), not a sudden death
         signal.signal(signal.SIGTERM, _exit)
-        uvicorn.run(app, host=args.host, port=args.port, log_level="info")
+        logs.configure(settings.log_format)  # uvicorn's lines too: it configures none
+        uvicorn.run(app, host=args.host, port=args.port, log_config=None, access_log=False)
     return 0
 
 

@@ -12,6 +12,7 @@ from redis import Redis
 
 from service import auth, fairuse, idempotency, problems
 from service.limits import BodyLimits, JsonChecks
+from service.requestid import RequestIds
 from service.routers import health, jobs, meshes, metrics, plans, studies, viewer
 from worker.queue import make_queue
 from worker.settings import Settings, get_settings
@@ -60,7 +61,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     )
     app.add_middleware(BodyLimits, settings=settings)  # caps per route, 415, upload slots
     app.add_middleware(fairuse.FairUse, conn=conn, settings=settings)  # POST rate, bodies unread
-    app.add_middleware(auth.ApiKeys, keys=settings.api_key_list())  # outermost: before bodies
+    app.add_middleware(auth.ApiKeys, keys=settings.api_key_list())  # before bodies
+    app.add_middleware(RequestIds)  # outermost: every answer has its X-Request-ID
     app.state.settings = settings
     app.state.redis = conn
     app.state.queue = make_queue(conn, settings)

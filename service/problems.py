@@ -19,7 +19,7 @@ from fastapi.responses import JSONResponse
 from redis.exceptions import RedisError
 from starlette.exceptions import HTTPException
 
-from service import routes
+from service import requestid, routes
 from vpp_core.errors import (
     ForbiddenError,
     LimitError,
@@ -67,6 +67,8 @@ def problem(
     headers = {"Retry-After": str(_retry_after_s(request))} if status == 503 else None
     if status == 401:
         headers = {"WWW-Authenticate": 'Bearer realm="vpp"'}
+    rid = requestid.request_id(request.scope)  # also on 500s, sent outside RequestIds
+    headers = {**(headers or {}), **({requestid.HEADER: rid} if rid else {})}
     return JSONResponse({**body, **extra}, status_code=status, media_type=PROBLEM, headers=headers)
 
 

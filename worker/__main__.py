@@ -8,6 +8,7 @@ import logging
 import os
 import time
 from types import FrameType
+from typing import Any
 
 # Before numpy loads: one BLAS thread per process (a spinning helper thread slows forked horses).
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
@@ -24,7 +25,7 @@ from rq import Queue, Worker  # noqa: E402
 from rq.job import Job  # noqa: E402
 
 import worker.jobs  # noqa: E402,F401
-from worker import webhooks  # noqa: E402
+from worker import logs, webhooks  # noqa: E402
 from worker.jobs import connect  # noqa: E402
 from worker.pool import follow_parent  # noqa: E402
 from worker.settings import Settings, get_settings  # noqa: E402
@@ -47,6 +48,14 @@ class VppWorker(Worker):
     def request_stop(self, signum: int, frame: FrameType | None) -> None:
         self.stopping = True
         super().request_stop(signum, frame)  # type: ignore[no-untyped-call]
+
+    def perform_job(self, job: Job, *args: Any) -> bool:
+        """RQ's perform_job (in the work horse) with the job id on every line logged meanwhile."""
+        token = logs.JOB_ID.set(job.id)
+        try:
+            return bool(super().perform_job(job, *args))
+        finally:
+            logs.JOB_ID.reset(token)
 
     def get_heartbeat_ttl(self, job: Job, working_time: float = 0.0) -> int:
         if job.timeout and job.timeout > 0 and working_time >= job.timeout:
@@ -81,7 +90,7 @@ def main(argv: list[str] | None = None) -> None:
     url = args.url or settings.redis_url
     if not url:
         parser.error("no Redis: pass --url or set VPP_REDIS_URL")
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
+    logs.configure(settings.log_format)
     conn = connect(url)
     for attempt in itertools.count():
         # a worker that lost Redis quits (RQ); start another (new name: the old one may still be

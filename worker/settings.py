@@ -105,9 +105,9 @@ class Settings(BaseSettings):
     max_active_jobs: int = Field(20, ge=1)
     """Queued and running jobs one API key (or address) may have at once; a submission past it
     gets 429 with Retry-After, so one client cannot fill the queue and starve the others."""
-    log_format: Literal["text", "json"] | None = None
-    """Log lines as `json` (one object per line: time, level, logger, message, request and job
-    ids) or `text`; unset: text on a terminal, JSON otherwise."""
+    log_format: Literal["text", "json"] = "text"
+    """Log lines of the API and the workers as `json` (one object per line: time, level, logger,
+    message, request_id, job_id) or `text` (the default: for a terminal); worker/logs.py."""
 
     @field_validator("api_keys")
     @classmethod

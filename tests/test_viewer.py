@@ -354,6 +354,15 @@ def test_the_page_opens_legible_and_leaves_nothing_behind(live, browser) -> None
     _assert_legible(_label_layout(page)[0], canvas)
     _look_then_clear(page, len(doc["viewpoints"]))
     _summary_text(page)
+    # a canvas too small for every number: those left out are counted, the rest still legible
+    page.page.set_viewport_size({"width": 410, "height": 120})  # canvas 30 × 120 px
+    page.js("window.vppViewer.fit(false)")
+    boxes, _, canvas = _label_layout(page)
+    _assert_legible(boxes, canvas)
+    hidden = len(doc["viewpoints"]) - len(boxes)
+    assert hidden > 0
+    note = page.page.locator("#labels-note").inner_text()
+    assert note.startswith(f"{hidden} of {len(doc['viewpoints'])} numbers hidden"), note
     assert page.errors == []
 
 

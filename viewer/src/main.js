@@ -12,6 +12,9 @@ const state = { plan: null, doc: null, meshId: null, geometry: null, scene: null
 const view = new PlanScene($('canvas'), $('labels'));
 view.onPick = (k) => select(k);
 view.onInteract = () => leaveCamera();
+view.onLabels = (shown, total) => {
+  $('labels-note').textContent = shown < total ? `${total - shown} of ${total} numbers hidden where they would cover others: zoom in to see them` : '';
+};
 
 function status(text, error = false) {
   $('status').textContent = text;

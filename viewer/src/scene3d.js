@@ -392,6 +392,9 @@ export class PlanScene {
       it.l.element.hidden = r === null;
       if (r) it.l.element.style.transform = `translate(${r[0]}px, ${r[1]}px)`;
     });
+    const shown = placed.filter((r) => r !== null).length;
+    if (shown !== this.labelsShown) this.onLabels?.(shown, items.length);
+    this.labelsShown = shown;
   }
 
   /** The part's projected box [x0, y0, x1, y1] in canvas CSS px (up to 20 000 vertices). */

@@ -21,6 +21,7 @@ from typing import Any
 import pytest
 
 from tests.conftest import ROOT
+from tests.test_webhooks import SECRET, Receiver
 from vpp_core.samples import sample_stl
 
 pytestmark = pytest.mark.slow
@@ -31,7 +32,7 @@ PACKAGE = "vpp_generated_client"
 OPERATIONS = {
     "meshes": ("upload_mesh", "get_mesh"),
     "plans": ("submit_plan", "get_plan"),
-    "jobs": ("get_job", "cancel_job"),
+    "jobs": ("get_job", "cancel_job", "list_jobs"),
 }
 """Tag (the generated api subpackage) -> operation ids the test needs."""
 JOB_DEADLINE_S = 60.0
@@ -78,9 +79,12 @@ def generated(tmp_path: Path) -> Iterator[SimpleNamespace]:
 
 
 @pytest.fixture
-def base_url(svc_env: dict[str, str]) -> Iterator[str]:
-    """The API served by uvicorn in a thread of this process on a loopback port of its own."""
+def base_url(svc_env: dict[str, str], monkeypatch: pytest.MonkeyPatch) -> Iterator[str]:
+    """The API served by uvicorn in a thread of this process on a loopback port of its own
+    (callbacks to loopback allowed: the test's webhook receiver is there)."""
     import uvicorn
+
+    monkeypatch.setenv("VPP_CALLBACK_ALLOW_PRIVATE", "1")
 
     from service.app import create_app
     from worker.settings import Settings
@@ -153,10 +157,12 @@ def test_generated_client_plans_the_sample_part(
         got = api.get_mesh.sync(mesh.id, client=client)
         assert isinstance(got, m.MeshSummary) and got.to_dict() == mesh.to_dict()
 
-        # submit: the candidates union takes the generator form
+        # submit: the candidates union takes the generator form; a webhook callback
+        receiver = Receiver()
         submit = m.PlanSubmit.from_dict(
             {"mesh_id": mesh.id, "candidates": {"count": 30}, "target": {"resolution_mm": 0.5}}
         )
+        submit.callback = m.Callback(url=receiver.url, secret=SECRET)
         r = api.submit_plan.sync_detailed(client=client, body=submit)
         assert r.status_code == 202, (r.status_code, r.content)
         accepted = r.parsed
@@ -166,6 +172,15 @@ def test_generated_client_plans_the_sample_part(
         job = wait_for_job(api, client, accepted.id)
         assert str(job.status) == "succeeded", f"job {job.status}: {job.to_dict()}"
         assert job.result_url == f"/v1/plans/{accepted.id}"
+        receiver.wait(1)  # the callback's webhook, signed
+        assert json.loads(receiver.posts[0][1])["data"]["id"] == accepted.id
+        assert receiver.posts[0][0]["webhook-signature"].startswith("v1,")
+        receiver.close()
+
+        # the listing: the plan, newest first, filtered by kind
+        page = api.list_jobs.sync(client=client, kind=m.ListJobsKindType0("plan"), limit=5)
+        assert isinstance(page, m.JobPage) and [j.id for j in page.items] == [accepted.id]
+        assert str(page.items[0].kind) == "plan" and page.next_cursor is None
 
         # the plan document, parsed by the generated models
         r = api.get_plan.sync_detailed(accepted.id, client=client)

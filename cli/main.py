@@ -19,6 +19,7 @@ from vpp_core.camera.sensor import make_sensor
 from vpp_core.errors import VppError
 from vpp_core.mesh.part import UNITS_TO_MM, Part
 from vpp_core.mesh.tessellate import load_part
+from vpp_core.plan.cycle import Objective
 from vpp_core.plan.diagnostics import Undersampled
 from vpp_core.plan.document import (
     CandidateGenerator,
@@ -105,6 +106,7 @@ def build_parser() -> argparse.ArgumentParser:
         q.add_argument("--csv", type=Path, help="write the rows as CSV here")
         q.add_argument("--plots", type=Path, metavar="DIR", help="write PNG plots and data here")
         q.set_defaults(run=run_study)
+    _export_options(sub.add_parser("export", help="a plan's poses for the cell: CSV or JSON"))
     e = sub.add_parser("sample", help="write the sample part (a flanged bushing, mm) as STL")
     e.add_argument("output", type=Path, help="STL file to write")
     e.set_defaults(run=run_sample)
@@ -177,6 +179,7 @@ def _plan_options(p: argparse.ArgumentParser) -> None:
         default=0.0,
         help="tilt generated gazes up to this angle off the normal, deg (30 for holes, pockets)",
     )
+    _objective_options(p)
     p.add_argument("--solver", default="milp", choices=["milp", "greedy"])
     p.add_argument("--time-limit", type=float, default=60.0, help="solver time limit, s")
     p.add_argument("--gap", type=float, default=0.0, help="relative MIP gap accepted")
@@ -189,6 +192,57 @@ def _plan_options(p: argparse.ArgumentParser) -> None:
         help=f"ray backend for R (default {DEFAULT_BACKEND}: the fastest)",
     )
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
+
+
+def _objective_options(p: argparse.ArgumentParser) -> None:
+    """The objective and the cell's travel model (docs/cell.md)."""
+    p.add_argument(
+        "--objective",
+        default="views",
+        choices=["views", "cycle_time"],
+        help="views: the fewest views; cycle_time: also a cover weighted by dwell + travel, "
+        "kept when its cycle is shorter",
+    )
+    p.add_argument("--dwell", type=float, default=1.0, metavar="S", help="time per view, s")
+    p.add_argument("--speed", type=float, default=250.0, metavar="MM_PER_S", help="mm/s")
+    p.add_argument("--accel", type=float, metavar="MM_PER_S2", help="acceleration, mm/s²")
+    p.add_argument(
+        "--home", type=_floats, metavar="X,Y,Z", help="start/end of the cycle, mm (part frame)"
+    )
+
+
+def _export_options(x: argparse.ArgumentParser) -> None:
+    """`vpp export PLAN.json --format csv|json [--frame cell|part] [--unit mm|m] [-o FILE]`."""
+    x.add_argument("plan", type=Path, help="plan document (JSON) written by vpp plan -o")
+    x.add_argument("--format", default="csv", choices=["csv", "json"])
+    x.add_argument(
+        "--frame",
+        default="cell",
+        choices=["cell", "part"],
+        help="both are the part frame until the plan carries setup.part_to_cell",
+    )
+    x.add_argument("--unit", default="mm", choices=["mm", "m"])
+    x.add_argument("-o", "--output", type=Path, help="write here (default: stdout)")
+    x.set_defaults(run=run_export)
+
+
+def run_export(args: argparse.Namespace) -> int:
+    """Write the plan's poses in visiting order as CSV or JSON."""
+    from vpp_core.report.export import poses_csv, poses_json
+
+    try:
+        doc = PlanDocument.model_validate_json(_read(args.plan, 256 * 2**20))
+    except ValidationError as exc:
+        raise InputError(f"{args.plan}: not a plan document ({exc.error_count()} errors)") from None
+    if args.format == "csv":
+        text = poses_csv(doc, args.unit)
+    else:
+        text = poses_json(doc, args.unit, args.frame) + "\n"
+    if args.output:
+        _write(args.output, text)
+    else:
+        sys.stdout.write(text)
+    return 0
 
 
 def _floats(text: str) -> list[float]:
@@ -399,6 +453,13 @@ def _request(args: argparse.Namespace) -> PlanRequest:
             solver=SolverSettings(
                 name=args.solver, time_limit_s=args.time_limit, mip_rel_gap=args.gap
             ),
+            objective=Objective(
+                name=args.objective,
+                dwell_s=args.dwell,
+                speed_mm_s=args.speed,
+                accel_mm_s2=args.accel,
+                home=args.home,
+            ),
             backend=args.backend,
         )
     except ValidationError as exc:
@@ -500,6 +561,7 @@ def summary(doc: PlanDocument) -> Table:
         ),
         ("median resolution", f"{_g(m.resolution.median_mm)} mm"),
         ("uncoverable faces", f"{doc.uncoverable.faces} ({doc.uncoverable.area_mm2:.4g} mm²)"),
+        *_tour_rows(doc),
         *_partial_rows(doc),
         *_diagnostic_rows(doc),
         (
@@ -512,6 +574,21 @@ def summary(doc: PlanDocument) -> Table:
     for row in rows:
         table.add_row(*row)
     return table
+
+
+def _tour_rows(doc: PlanDocument) -> list[tuple[str, str]]:
+    """The summary row of the tour: length, cycle time, solver."""
+    t = doc.tour
+    if t is None:
+        return []
+    home = "from home" if t.home is not None else "open path"
+    return [
+        (
+            "tour",
+            f"{t.length_mm:.0f} mm {home}, cycle {t.cycle_time_s:.1f} s "
+            f"(dwell {t.dwell_s:.1f} + travel {t.travel_s:.1f}; {t.solver}, {t.cover} cover)",
+        )
+    ]
 
 
 def _partial_rows(doc: PlanDocument) -> list[tuple[str, str]]:

@@ -211,6 +211,7 @@ def test_committed_openapi_matches_the_app() -> None:
         "get_related_plans", "submit_point_cloud", "get_point_cloud", "get_point_cloud_stats",
         "get_point_cloud_plot", "submit_study", "get_study", "get_study_csv",
         "list_study_plots", "get_study_plot", "list_jobs", "job_events", "get_metrics",
+        "get_poses_csv", "get_poses_json",
     }  # fmt: skip
 
 

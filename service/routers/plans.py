@@ -12,6 +12,7 @@ from service.deps import QueueDep, SettingsDep, StoreDep
 from service.jobmodels import CloudSubmit
 from service.models import JobAccepted, PlanSubmit, Problem
 from vpp_core.plan.document import PlanDocument
+from vpp_core.report.export import Frame, Unit, poses_csv, poses_json
 from vpp_core.report.pointcloud import CloudStats
 from worker import artifacts as art
 
@@ -99,6 +100,40 @@ def get_plan_plot(plan_id: str, name: str, store: StoreDep) -> Response:
     name = planning.plot_name(name, planning.PLAN_PLOTS)
     data = planning.stored(store, art.plot_key(f"plans/{plan_id}", name), f"plot {name}")
     return Response(data, media_type="image/png", headers={"Cache-Control": IMMUTABLE})
+
+
+def _poses(
+    plan_id: str, store: StoreDep, body: Callable[[PlanDocument], str], media: str
+) -> Response:
+    """The stored plan's poses written by `body` (404 while the plan is not computed)."""
+    doc = PlanDocument.model_validate_json(planning.plan_json(store, plan_id))
+    return Response(body(doc), media_type=media, headers={"Cache-Control": IMMUTABLE})
+
+
+@router.get(
+    "/{plan_id}/poses.csv",
+    response_class=Response,
+    responses={200: {"content": {"text/csv": {}}}, 404: {"model": Problem}},
+)
+def get_poses_csv(
+    plan_id: str, store: StoreDep, unit: Unit = "mm", frame: Frame = "cell"
+) -> Response:
+    """The poses in visiting order for the cell: CSV `index,x,y,z,qw,qx,qy,qz` in `unit`
+    (quaternion of camera_to_world). Frame `cell` is the part frame until setup lands."""
+    return _poses(plan_id, store, lambda doc: poses_csv(doc, unit), "text/csv")
+
+
+@router.get(
+    "/{plan_id}/poses.json",
+    response_class=Response,
+    responses={200: {"content": {"application/json": {}}}, 404: {"model": Problem}},
+)
+def get_poses_json(
+    plan_id: str, store: StoreDep, unit: Unit = "mm", frame: Frame = "cell"
+) -> Response:
+    """The poses in visiting order as {position {x,y,z}, orientation {w,x,y,z}} in `unit`,
+    with home and cycle time. Frame `cell` is the part frame until setup lands."""
+    return _poses(plan_id, store, lambda doc: poses_json(doc, unit, frame), "application/json")
 
 
 @router.post(

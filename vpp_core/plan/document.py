@@ -7,6 +7,7 @@ from typing import Annotated, Literal
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field
 
 from vpp_core.camera.sensor import Sensor
+from vpp_core.plan.cycle import Objective, TourOut
 from vpp_core.plan.diagnostics import Diagnostics
 from vpp_core.plan.metrics import Metrics
 from vpp_core.trace.rays import DEFAULT_BACKEND, BackendName
@@ -86,6 +87,7 @@ class PlanRequest(_Strict):
     target: Target = Target()
     candidates: Candidates = Field(default_factory=CandidateGenerator)
     solver: SolverSettings = SolverSettings()
+    objective: Objective = Objective()
     backend: BackendName = Field(
         DEFAULT_BACKEND,
         description="ray backend that computes R: `raster` (z-buffer of face ids at pixel "
@@ -206,6 +208,9 @@ class PlanDocument(BaseModel):
     candidate_info: CandidateInfo
     viewpoints: list[ViewpointOut]
     tour_length_mm: float
+    """Length of the path through the viewpoints in order (mm), no legs to or from home."""
+    tour: TourOut | None = None
+    """The visiting order, its length and cycle time from home (request.objective)."""
     solver: SolverOut
     metrics: Metrics
     uncoverable: Uncoverable

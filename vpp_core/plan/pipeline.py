@@ -15,6 +15,7 @@ from vpp_core.cover.density import CoverModel, cover_model
 from vpp_core.cover.partial import PartialCover, solve_partial
 from vpp_core.errors import LimitError
 from vpp_core.mesh.part import Part
+from vpp_core.plan.cycle import TourOut, make_tour
 from vpp_core.plan.diagnostics import diagnose
 from vpp_core.plan.document import (
     CandidateGenerator,
@@ -35,7 +36,8 @@ from vpp_core.plan.document import (
     ViewpointOut,
 )
 from vpp_core.plan.metrics import evaluate
-from vpp_core.plan.tour import path_length, visiting_order
+from vpp_core.plan.objective import by_objective
+from vpp_core.plan.tour import path_length
 from vpp_core.trace.rays import RayBackend
 from vpp_core.trace.raytrace import Trace, make_backend, trace_counts
 
@@ -115,12 +117,15 @@ def solve(
     target: Target,
     settings: SolverSettings,
     threads: int | None = None,
+    costs: np.ndarray | None = None,
 ) -> PartialCover:
-    """Cover the rows (all, or target.min_coverage of their area (M,) mm²) as `settings` ask."""
+    """Cover the rows (all, or target.min_coverage of their area (M,) mm²) as `settings` ask,
+    columns at `costs` (N,) (None: one each)."""
     return solve_partial(
         model.matrix,
         areas[model.faces],
         target.min_coverage,
+        costs,
         method=settings.name,
         time_limit=settings.time_limit_s,
         mip_rel_gap=settings.mip_rel_gap,
@@ -205,8 +210,14 @@ def finish(
         )
     with clock.stage("solve"):
         cover = solve(model, part.areas, request.target, request.solver, threads)
+        cover, tour = by_objective(
+            cover,
+            request.objective,
+            views.positions,
+            lambda c: solve(model, part.areas, request.target, request.solver, threads, c),
+        )
     with clock.stage("metrics"):
-        doc = document(part, request, views, info, trace, model, cover, clock.timings)
+        doc = document(part, request, views, info, trace, model, cover, clock.timings, tour)
     with clock.stage("diagnostics"):
         doc.diagnostics = diagnose(
             part,
@@ -246,11 +257,12 @@ def document(
     model: CoverModel,
     cover: PartialCover,
     timings: Timings,
+    tour: TourOut | None = None,
 ) -> PlanDocument:
-    """Assemble the plan document from the stages' results."""
+    """Assemble the plan document from the stages' results (`tour`: the cover's, else made)."""
     result = cover.result
-    order = visiting_order(views.positions[result.selected])
-    chosen = result.selected[order]
+    tour = tour or make_tour(views.positions, result.selected, request.objective)
+    chosen = np.asarray(tour.order, dtype=np.int64)
     metrics = evaluate(trace.counts, part.areas, part.counted, chosen, request.target.resolution_mm)
     return PlanDocument(
         mesh=mesh_info(part),
@@ -260,6 +272,7 @@ def document(
         candidate_info=info,
         viewpoints=_poses(views, chosen, ViewpointOut),
         tour_length_mm=path_length(views.positions, chosen),
+        tour=tour,
         solver=SolverOut(
             name=result.solver,
             status=result.status,

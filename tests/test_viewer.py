@@ -351,6 +351,11 @@ def test_the_page_opens_legible_and_leaves_nothing_behind(live, browser) -> None
     assert len(boxes) == len(doc["viewpoints"])
     _assert_legible(boxes, canvas)
     page.js("window.vppViewer.orbit(7)")
+    # while the eye moves the canvas draws half its pixels; all of them once it stops
+    pixels = "(c => [c.width, c.clientWidth])(document.getElementById('canvas'))"
+    moving = page.js(pixels)
+    assert moving[0] == round(moving[1] / 2), moving
+    page.page.wait_for_function(f"(([w, c]) => w === c)({pixels})", timeout=5_000)
     _assert_legible(_label_layout(page)[0], canvas)
     _look_then_clear(page, len(doc["viewpoints"]))
     _summary_text(page)

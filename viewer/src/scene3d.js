@@ -14,6 +14,8 @@ const DIM_MIX = 0.72;
 const GLYPH = 0.25; // a camera glyph is a pyramid this many part diagonals deep (≤ near_mm)
 const FIT_MARGIN = 0.1; // share of the canvas left around what `fit` frames
 const FIT_POINTS = 20000;
+const MOVING_SCALE = 0.5; // while the eye moves, the canvas draws at this share of its pixels
+const SETTLE_MS = 200; // ... and at all of them this long after it stops
 const AIM_FACES = 2000; // faces per camera searched for its aim point (evenly spread)
 const PIN_PX = 9; // camera pins, drawn and picked in screen pixels
 const PICK_PX = 8;
@@ -40,7 +42,8 @@ export class PlanScene {
     this.camera.add(sun);
     this.controls = new OrbitControls(this.camera, canvas);
     this.controls.addEventListener('change', () => this.render());
-    this.controls.addEventListener('start', () => this.onInteract?.());
+    this.controls.addEventListener('start', () => { this.moving(); this.onInteract?.(); });
+    this.controls.addEventListener('end', () => this.moving());
     this.cameras = new THREE.Group();
     this.scene.add(this.cameras);
     this.selected = null;
@@ -439,7 +442,24 @@ export class PlanScene {
   }
 
   /** Turn the eye by `angle` (rad) around the orbit target, about the camera's up axis. */
+  /** The eye moves: draw at MOVING_SCALE of the pixels (a CPU rasteriser keeps up) until
+   * SETTLE_MS after the last call, then at full resolution again. */
+  moving() {
+    clearTimeout(this.settle);
+    const full = window.devicePixelRatio;
+    if (this.renderer.getPixelRatio() === full) this.setPixelRatio(full * MOVING_SCALE);
+    this.settle = setTimeout(() => this.setPixelRatio(full), SETTLE_MS);
+  }
+
+  setPixelRatio(ratio) {
+    const { width, height } = this.size();
+    this.renderer.setPixelRatio(ratio);
+    this.renderer.setSize(width, height, false);
+    this.render();
+  }
+
   rotate(angle) {
+    this.moving();
     const offset = this.camera.position.clone().sub(this.controls.target);
     offset.applyAxisAngle(this.camera.up, angle);
     this.camera.position.copy(this.controls.target).add(offset);

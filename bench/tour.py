@@ -1,6 +1,7 @@
 """Visiting orders compared: the old nearest neighbour + 2-opt (vpp_core.plan.tour), the new
-OR-Tools route (vpp_core.plan.route) and LKH-3 through elkai (if installed), on random camera
-positions and on a real plan's viewpoints. Lengths in mm, times in s; one line per instance.
+OR-Tools route (vpp_core.plan.route) and LKH-3 through elkai (if installed; one run), on
+random camera positions and on a real plan's viewpoints. Open paths: lengths in mm, times in
+s; one JSON line per instance.
 
     python bench/tour.py [--plan PLAN.json ...] [--sizes 25,50,100,200,500] [--seeds 5]
 """
@@ -51,9 +52,8 @@ def compare(points: np.ndarray) -> dict[str, float]:
     try:
         import elkai
 
-        ints = np.rint(cost * 1000).astype(int).tolist()
-        lkh, t_lkh = timed(elkai.solve_int_matrix, ints)
-        row["lkh_mm"] = route_cost(cost, _rotate(lkh, len(points)))
+        lkh, t_lkh = timed(lambda: elkai.DistanceMatrix(cost.tolist()).solve_tsp(runs=1))
+        row["lkh_mm"] = route_cost(cost, _rotate(lkh[:-1], len(points)))
         row["lkh_s"] = t_lkh
     except ImportError:
         pass
@@ -61,7 +61,7 @@ def compare(points: np.ndarray) -> dict[str, float]:
 
 
 def _rotate(tour: list[int], depot: int) -> np.ndarray:
-    """A closed elkai tour as the views' order after the depot."""
+    """A closed elkai tour (its end not repeated) as the views' order after the depot."""
     i = tour.index(depot)
     return np.asarray((tour[i + 1 :] + tour[:i]), dtype=np.int64)
 

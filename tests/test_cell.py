@@ -198,3 +198,18 @@ def test_api_poses_routes(api: Any) -> None:
     r = api.get(f"/v1/plans/{plan_id}/poses.csv?unit=inch")
     assert r.status_code == 422
     assert r.headers["content-type"].startswith("application/problem+json")
+
+
+def test_api_plan_request_takes_the_objective(api: Any) -> None:
+    from vpp_core.samples import sample_stl
+
+    mesh = api.post("/v1/meshes", files={"file": ("b.stl", sample_stl())}).json()["id"]
+    body: dict[str, Any] = {"mesh_id": mesh, "candidates": {"count": 20}}
+    objective = {"name": "cycle_time", "dwell_s": 0.5, "speed_mm_s": 200, "home": [0, 0, 600]}
+    r = api.post("/v1/plans", json={**body, "objective": objective})
+    assert r.status_code == 202, r.text
+    plain = api.post("/v1/plans", json=body).json()["id"]
+    assert r.json()["id"] != plain  # the objective is part of the plan's identity
+    r = api.post("/v1/plans", json={**body, "objective": {**objective, "speed_mm_s": 0}})
+    assert r.status_code == 422
+    assert r.headers["content-type"].startswith("application/problem+json")

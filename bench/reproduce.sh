@@ -7,7 +7,7 @@ OUT=${1:-docs/reproduction}
 M=../shared/meshes
 VPP=${VPP:-.venv/bin/vpp}
 [ -d "$M" ] || { echo "reproduce: $M not found (the shared meshes)"; exit 2; }
-COMMON=(--candidates 500 --resolution 0.18 --time-limit 30 -q)
+COMMON=(--profile paper --candidates 500 --resolution 0.18 --time-limit 30 -q)
 run() {  # name file units
   local name=$1 file=$2 units=$3
   mkdir -p "$OUT/$name"

@@ -42,7 +42,7 @@ from cadmeshes import load_pair, pair_parser  # noqa: E402
 
 from vpp_core.camera.pose import Viewpoints, make_viewpoints  # noqa: E402
 from vpp_core.camera.sensor import Sensor  # noqa: E402
-from vpp_core.candidates.generator import _place, _thin, smoothed_normals  # noqa: E402
+from vpp_core.candidates.generator import _thin, place, smoothed_normals  # noqa: E402
 from vpp_core.cover.partial import solve_partial  # noqa: E402
 from vpp_core.mesh.part import Part  # noqa: E402
 from vpp_core.plan.document import CandidateGenerator, PlanRequest  # noqa: E402
@@ -129,7 +129,7 @@ def grid_candidates(
         spacing *= 2 ** (-1 / 8)
     keep = keep[:count]
     normals = smoothed_normals(part.trimesh(), pts[keep], faces[keep], spacing / 2)
-    pos, gaze = _place(part, sensor, emb, pts[keep], normals, 20.0)
+    pos, gaze = place(part, emb, pts[keep], [normals], sensor.working_distance, 20.0)
     ok = np.isfinite(pos).all(1)
     return make_viewpoints(pos[ok], gaze[ok])
 

@@ -165,8 +165,8 @@ def _plan_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--min-coverage",
         type=float,
-        default=1.0,
-        help="cover this fraction of the coverable area (partial cover); default 1 = all",
+        help="cover this fraction of the coverable area (partial cover; what is left out is "
+        "listed); default profile 0.999, paper 1 = all",
     )
     cand = p.add_mutually_exclusive_group()
     cand.add_argument("--candidates", type=int, default=500, help="candidates to generate")
@@ -174,10 +174,42 @@ def _plan_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--decimate", type=float, help="generate candidates on this face fraction")
     p.add_argument("--clearance", type=float, default=20.0, help="least camera-part distance")
     p.add_argument(
+        "--profile",
+        default="default",
+        choices=["default", "paper"],
+        help="default: the project's best plans (docs/quality.md); paper: the paper's method "
+        "as SPEC §2-4 wrote it (gazes along the normal at the working distance, face rows)",
+    )
+    p.add_argument(
+        "--rows",
+        choices=["patches", "faces"],
+        help="cover rows: patches of surface about 5 r̄ across (default profile) or faces "
+        "(SPEC §3, paper profile)",
+    )
+    p.add_argument(
         "--tilt",
         type=float,
-        default=0.0,
-        help="tilt generated gazes up to this angle off the normal, deg (30 for holes, pockets)",
+        help="tilt generated gazes up to this angle off the normal, deg "
+        "(default profile 30, paper 0)",
+    )
+    p.add_argument(
+        "--retry-tilt",
+        type=float,
+        help="blocked samples try gazes within this wider angle before being dropped, deg "
+        "(default profile 60, paper 0)",
+    )
+    p.add_argument(
+        "--adaptive",
+        action=argparse.BooleanOptionalAction,
+        help="add candidates aimed at what drives the count after a quick cover "
+        "(default profile: on, paper: off)",
+    )
+    p.add_argument(
+        "--standoff",
+        type=float,
+        metavar="MM",
+        help="camera-sample distance, mm (default profile: where a pixel is r̄/1.2, "
+        "paper: the working distance)",
     )
     _objective_options(p)
     p.add_argument("--solver", default="milp", choices=["milp", "greedy"])
@@ -440,14 +472,19 @@ def _request(args: argparse.Namespace) -> PlanRequest:
                 decimate=args.decimate,
                 clearance_mm=args.clearance,
                 tilt_deg=args.tilt,
+                retry_tilt_deg=args.retry_tilt,
+                standoff_mm=args.standoff,
+                adaptive=args.adaptive,
             )
         )
         return PlanRequest(
+            profile=args.profile,
             sensor=sensor,
             target=Target(
                 resolution_mm=args.resolution,
                 formulation=args.formulation,
                 min_coverage=args.min_coverage,
+                rows=args.rows,
             ),
             candidates=candidates,
             solver=SolverSettings(

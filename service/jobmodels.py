@@ -6,6 +6,7 @@ from datetime import datetime
 
 from pydantic import BaseModel, ConfigDict, Field, HttpUrl, field_validator
 
+from vpp_core.errors import VppError
 from worker.webhooks import check_secret
 
 
@@ -29,7 +30,10 @@ class Callback(BaseModel):
     @field_validator("secret")
     @classmethod
     def _secret(cls, value: str) -> str:
-        check_secret(value)
+        try:
+            check_secret(value)
+        except VppError as exc:  # pydantic turns only ValueError into a 422 entry
+            raise ValueError(str(exc)) from None
         return value
 
 

@@ -223,7 +223,7 @@ def scene_gz(store: Store, plan: str) -> bytes:
         return store.get(key)
     doc = art.get_plan(store, plan)
     mesh_id, request = art.get_request(store, plan)
-    counts = art.get_trace(store, art.trace_id(mesh_id, request)).counts
+    counts = art.get_trace(store, art.plan_trace_id(mesh_id, request, doc)).counts
     return art.put_scene(store, plan, plan_scene(art.get_part(store, mesh_id), doc, counts))
 
 

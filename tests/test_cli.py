@@ -159,6 +159,7 @@ def test_min_coverage_plans_a_partial_cover_and_reports_it(tmp_path):
     trimesh.creation.box([60, 40, 20]).export(mesh)
     out = tmp_path / "plan.json"
     common = ("--candidates", "40", "--seed", "1", "--sensor", _small_sensor(tmp_path), "-q")
+    common += ("--no-adaptive",)  # one pool for both plans: their counts compare
     run = vpp("plan", mesh, *common, "--min-coverage", "0.9", "-o", out)
     assert run.returncode == 0, run.stderr
     assert "partial cover (min 90.00%)" in run.stdout and "sub-pixel faces" in run.stdout
@@ -170,7 +171,7 @@ def test_min_coverage_plans_a_partial_cover_and_reports_it(tmp_path):
         part["coverable_area_mm2"]
     )
     strict = tmp_path / "strict.json"
-    assert vpp("plan", mesh, *common, "-o", strict).returncode == 0
+    assert vpp("plan", mesh, *common, "--min-coverage", "1", "-o", strict).returncode == 0
     strict_doc = json.loads(strict.read_text())
     assert strict_doc["partial"] is None
     assert len(doc["viewpoints"]) <= len(strict_doc["viewpoints"])
@@ -287,7 +288,8 @@ def test_study_resolution_writes_json_csv_and_plots(tmp_path):
     out, csv, plots = tmp_path / "s.json", tmp_path / "s.csv", tmp_path / "plots"
     run = vpp(
         "study", "resolution", mesh, "--sensor", sensor, "--candidates", "40", "-q",
-        "--resolutions", "1.2,2.5", "-o", out, "--csv", csv, "--plots", plots,
+        "--standoff", "500", "--resolutions", "1.2,2.5", "-o", out, "--csv", csv,
+        "--plots", plots,
     )  # fmt: skip
     assert run.returncode == 0, run.stderr
     doc = json.loads(out.read_text())
@@ -300,8 +302,8 @@ def test_study_resolution_writes_json_csv_and_plots(tmp_path):
     assert {"study.json", "study.csv", "sweep.png", "histogram-1.2mm.png"} <= names
     # the same count from a fresh plan at one of the resolutions
     plan_out = tmp_path / "plan.json"
-    run = vpp("plan", mesh, "--sensor", sensor, "--candidates", "40", "-q",
-              "--resolution", "1.2", "-o", plan_out)  # fmt: skip
+    run = vpp("plan", mesh, "--sensor", sensor, "--candidates", "40", "-q", "--no-adaptive",
+              "--standoff", "500", "--resolution", "1.2", "-o", plan_out)  # fmt: skip
     assert run.returncode == 0, run.stderr
     row = next(
         r for r in doc["rows"] if r["resolution_mm"] == 1.2 and r["formulation"] == "density"

@@ -95,6 +95,19 @@ def part() -> Part:
     return stepped_part()
 
 
+def patch_rows(
+    r: np.ndarray, areas: np.ndarray, counted: np.ndarray, patch_of_face: list[int]
+) -> tuple[np.ndarray, np.ndarray]:
+    """R and areas summed per patch of the document's grouping, entries of fewer than 3 rays
+    dropped as stray rays (docs/quality.md)."""
+    of = np.asarray(patch_of_face)
+    rp = np.zeros((of.max() + 1, r.shape[1]))
+    np.add.at(rp, of[counted], r[counted])
+    ap = np.bincount(of[counted], weights=areas[counted], minlength=len(rp))
+    rp[rp < 3] = 0
+    return rp, ap
+
+
 @pytest.mark.parametrize("tilt", [0.0, 30.0])
 @pytest.mark.parametrize("formulation", ["density", "visibility"])
 def test_claims_hold_independently(part, formulation, tilt):
@@ -103,7 +116,7 @@ def test_claims_hold_independently(part, formulation, tilt):
     res = 1.2  # mm: this small sensor's pitch at 500 mm is ~1.1 mm
     request = PlanRequest(
         sensor=SMALL,
-        target=Target(resolution_mm=res, formulation=formulation),
+        target=Target(resolution_mm=res, formulation=formulation, rows="faces"),
         candidates=CandidateGenerator(count=30, seed=3, tilt_deg=tilt),
     )
     doc = PlanDocument.model_validate_json(plan(part, request).model_dump_json())
@@ -135,6 +148,38 @@ def test_claims_hold_independently(part, formulation, tilt):
         == len(chosen)
         == brute_or_milp_optimum(s_matrix(r, part.areas, res, formulation))
     )
+
+
+@pytest.mark.parametrize("formulation", ["density", "visibility"])
+def test_patch_claims_hold_independently(part, formulation):
+    """The default rows: patches of the document's grouping, recounted and solved again
+    (strict: the default partial cover of 0.999 is checked by the partial tests below)."""
+    from vpp_core.plan.pipeline import plan
+
+    res = 1.2
+    request = PlanRequest(
+        sensor=SMALL,
+        target=Target(resolution_mm=res, formulation=formulation, min_coverage=1.0),
+        candidates=CandidateGenerator(count=30, seed=3),
+    )
+    doc = PlanDocument.model_validate_json(plan(part, request).model_dump_json())
+    rows = doc.cover_rows
+    assert rows is not None and rows.kind == "patches" and rows.patch_of_face is not None
+    r = recount(part, SMALL, np.array([_c2w(c) for c in doc.candidates])).toarray()
+    chosen = [v.id for v in doc.viewpoints]
+    rp, ap = patch_rows(r, part.areas, part.counted, rows.patch_of_face)
+    of = np.asarray(rows.patch_of_face)
+    assert rows.count == len(ap) and np.allclose(ap[of[part.counted]] > 0, True)
+    # every sampled patch is sampled by the selection; faces of unsampled patches are listed
+    sampled = rp.any(axis=1)
+    assert not (sampled & ~rp[:, chosen].any(axis=1)).any()
+    listed = set(doc.uncoverable.ids) | set(rows.unsampled.ids if rows.unsampled else [])
+    assert listed == set(np.flatnonzero(part.counted & ~sampled[np.maximum(of, 0)]).tolist())
+    assert set(doc.uncoverable.ids) == set(np.flatnonzero(part.counted & ~r.any(axis=1)))
+    # "optimal" is optimal on the patch rows
+    assert doc.solver.status == "optimal"
+    optimum = brute_or_milp_optimum(s_matrix(rp, ap, res, formulation))
+    assert doc.solver.objective == len(chosen) == optimum
 
 
 def test_density_needs_more_views_than_visibility(part):
@@ -176,21 +221,29 @@ def partial_optimum(s: np.ndarray, w: np.ndarray, fraction: float) -> int:
     return int(round(res.fun))
 
 
+@pytest.mark.parametrize("rows", ["faces", "patches"])
 @pytest.mark.parametrize("formulation", ["density", "visibility"])
-def test_partial_cover_claims_hold_independently(part, formulation):
+def test_partial_cover_claims_hold_independently(part, formulation, rows):
     from vpp_core.plan.pipeline import plan
 
     res, fraction = 1.2, 0.97
+    target = {"resolution_mm": res, "formulation": formulation, "rows": rows}
     request = PlanRequest(
         sensor=SMALL,
-        target=Target(resolution_mm=res, formulation=formulation, min_coverage=fraction),
+        target=Target(**target, min_coverage=fraction),  # type: ignore[arg-type]
         candidates=CandidateGenerator(count=30, seed=3),
     )
     doc = PlanDocument.model_validate_json(plan(part, request).model_dump_json())
     r = recount(part, SMALL, np.array([_c2w(c) for c in doc.candidates])).toarray()
-    s = s_matrix(r, part.areas, res, formulation)
-    faces = np.flatnonzero(r.any(axis=1))
-    w = part.areas[faces]
+    if rows == "faces":
+        s, w = s_matrix(r, part.areas, res, formulation), part.areas[r.any(axis=1)]
+        row_faces = [[f] for f in np.flatnonzero(r.any(axis=1))]
+    else:
+        assert doc.cover_rows is not None and doc.cover_rows.patch_of_face is not None
+        of = np.asarray(doc.cover_rows.patch_of_face)
+        rp, ap = patch_rows(r, part.areas, part.counted, doc.cover_rows.patch_of_face)
+        s, w = s_matrix(rp, ap, res, formulation), ap[rp.any(axis=1)]
+        row_faces = [np.flatnonzero(of == p).tolist() for p in np.flatnonzero(rp.any(axis=1))]
     chosen = [v.id for v in doc.viewpoints]
     met = s[:, chosen].sum(axis=1) >= 1 - 1e-9
     p = doc.partial
@@ -198,11 +251,12 @@ def test_partial_cover_claims_hold_independently(part, formulation):
     assert p.coverable_area_mm2 == pytest.approx(w.sum(), rel=1e-3)
     assert p.covered_area_mm2 == pytest.approx(w[met].sum(), rel=1e-3)
     assert p.covered_fraction >= fraction and w[met].sum() >= fraction * w.sum() * (1 - 1e-3)
-    assert sorted(p.left_out.ids) == sorted(faces[~met].tolist())
+    left = sorted(f for k in np.flatnonzero(~met) for f in row_faces[k])
+    assert sorted(p.left_out.ids) == left
     assert doc.solver.status == "optimal"
     assert doc.solver.objective == len(chosen) == partial_optimum(s, w, fraction)
     strict = plan(
         part,
-        request.model_copy(update={"target": Target(resolution_mm=res, formulation=formulation)}),
+        request.model_copy(update={"target": Target(**target, min_coverage=1.0)}),  # type: ignore[arg-type]
     )
     assert len(chosen) <= len(strict.viewpoints)

@@ -65,7 +65,12 @@ def _planned(formulation: str = "density", resolution: float = 1.0):  # type: ig
         {
             "sensor": SMALL,
             "candidates": {"count": 40},
-            "target": {"resolution_mm": resolution, "formulation": formulation},
+            "target": {
+                "resolution_mm": resolution,
+                "formulation": formulation,
+                "rows": "faces",
+                "min_coverage": 1.0,
+            },
         }
     )
     backend = make_backend(part)

@@ -21,15 +21,19 @@ from tests.conftest import ROOT
 
 schemathesis = pytest.importorskip("schemathesis")
 from schemathesis import GenerationMode  # noqa: E402
-from schemathesis.specs.openapi.checks import positive_data_acceptance  # noqa: E402
+from schemathesis.specs.openapi.checks import ignored_auth, positive_data_acceptance  # noqa: E402
 
 SCHEMA = schemathesis.openapi.from_path(ROOT / "openapi" / "openapi.json")
+SCHEMA.config.generation.with_security_parameters = False
+"""The fuzzed app runs with no API keys, where every route is open by design (the document's
+bearer scheme is "needed only where keys are set"); keys are tested in tests/test_auth.py."""
 OPERATIONS = [result.ok() for result in SCHEMA.get_all_operations()]
 EXAMPLES = int(os.environ.get("VPP_FUZZ_EXAMPLES", "50"))
 """Cases per operation and generation mode (2 modes × 19 operations × 50 = 1900 ≥ 1000)."""
-EXCLUDED = [positive_data_acceptance]
+EXCLUDED = [positive_data_acceptance, ignored_auth]
 """Schema-valid requests may be refused with 422 by design: an unknown `mesh_id` (64 hex digits
-that name no upload) or bytes that are not a mesh; the document cannot express "exists"."""
+that name no upload) or bytes that are not a mesh; the document cannot express "exists". And a
+bearer header is ignored without keys (above): GET /v1/jobs and /metrics answer 200 to any."""
 CALLS: dict[str, int] = {}
 """Cases sent per operation and mode, for the total check at the end."""
 
@@ -52,12 +56,20 @@ def fuzz_app(redis_url: str, tmp_path_factory: pytest.TempPathFactory) -> Iterat
     conn.close()
 
 
+def _has_inputs(operation: Any) -> bool:
+    """Whether the operation takes parameters or a body (what a negative case can break)."""
+    definition = operation.definition.raw
+    return bool(definition.get("parameters") or definition.get("requestBody"))
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("mode", [GenerationMode.POSITIVE, GenerationMode.NEGATIVE])
 @pytest.mark.parametrize("operation", OPERATIONS, ids=lambda op: op.label)
 def test_operation_answers_as_documented(fuzz_app: Any, operation: Any, mode: Any) -> None:
     key = f"{operation.label} {mode}"
     CALLS[key] = 0
+    if mode == GenerationMode.NEGATIVE and not _has_inputs(operation):
+        pytest.skip("no parameters and no body: nothing to negate")
 
     @settings(
         max_examples=EXAMPLES,

@@ -43,6 +43,7 @@ def wait(api, job: str, until=("succeeded", "failed", "canceled"), timeout: floa
 def same_plan(a: PlanDocument, b: PlanDocument) -> None:
     """Everything but timings and ray rates is identical."""
     drop = {"timings_s": True, "rays": {"cast_per_s", "trace_s", "reused"}, "solver": {"time_s"}}
+    drop |= {"tour": {"time_s"}, "adaptive": {"__all__": {"seconds"}}}
     assert a.model_dump(exclude=drop) == b.model_dump(exclude=drop)
 
 
@@ -71,7 +72,14 @@ def test_identical_request_is_answered_from_the_store_and_new_target_reuses_r(
     api, start_workers
 ) -> None:
     mesh = upload_sample(api)
-    body = {"mesh_id": mesh, "candidates": {"count": 60}}
+    # the default stand-off follows the target and the adaptive rounds follow R: both fixed
+    # here, so that another target reuses R and another backend's R gives the same plan (a
+    # strict cover: a partial one may leave out another of two equal faces)
+    body = {
+        "mesh_id": mesh,
+        "candidates": {"count": 60, "standoff_mm": 450, "adaptive": False},
+        "target": {"min_coverage": 1.0},
+    }
     job = submit(api, body)
     start_workers(1)
     first = wait(api, job)
@@ -87,12 +95,14 @@ def test_identical_request_is_answered_from_the_store_and_new_target_reuses_r(
     assert doc["target"]["resolution_mm"] == 0.05
     r = api.get(second["result_url"], headers={"If-None-Match": f'"{other}"'})
     assert r.status_code == 304
-    # another ray backend is another R (traced anew), and the same plan
+    # another ray backend is another R (traced anew), and as few views: the backends differ
+    # in rays on triangle edges, which may tip a patch's 3-ray threshold between tied covers
     embree = wait(api, submit(api, {**body, "backend": "embree"}))
     assert embree["status"] == "succeeded" and embree["chunks"] != []
     docs = [api.get(s["result_url"]).json() for s in (first, embree)]
     assert [d["rays"]["backend"] for d in docs] == ["raster", "embree"]
-    assert docs[0]["viewpoints"] == docs[1]["viewpoints"]
+    assert [d["solver"]["status"] for d in docs] == ["optimal", "optimal"]
+    assert len(docs[0]["viewpoints"]) == len(docs[1]["viewpoints"])
 
 
 def test_cancel_stops_a_running_job_and_a_resubmission_resumes(

@@ -2,11 +2,12 @@
 
 The CAD export of the shared Hirth joint (slivers down to 1.5e-6 mm², non-manifold edges) is
 planned against an isotropic remesh of it made here (pymeshlab, 1 mm edges, features kept),
-with the paper's camera, 0.18 mm and 500 candidates generated on each mesh. Under the
-documented partial cover (min_coverage 0.999) the counts must agree within 1 and both plans
-must cover at least 99.9 % of their coverable area. With candidates tilted up to 30°, the
-same setting holds on plate_holes against a 4 mm remesh (visibility), and makes featuretype's
-count independent of the generator's seed (within 1).
+with the paper's camera, 0.18 mm and 500 candidates generated on each mesh: at the defaults
+(issue 33: patch rows, tilted gazes, stand-off from the target, adaptive candidates) the
+counts agree within 10 % or one view, each plan sampling all the patch area its candidates
+reach. Under the paper profile with the flags docs/cad-meshes.md named (tilt 30, partial
+cover 0.999), the same holds on plate_holes against a 4 mm remesh (visibility), and makes
+featuretype's count independent of the generator's seed (within 1).
 On 1 mm² area elements (vpp_core.mesh.refine), the CAD plan also sees what it claims: traced on
 the remesh, it sees what the remesh's candidates reach. Remeshed both at 1 mm before planning
 (vpp_core.mesh.remesh.remesh, --remesh 1), featuretype's two exports agree within 1 at F = 0.99.
@@ -62,14 +63,22 @@ def two_tessellations() -> tuple[Part, Part]:
 
 @pytest.mark.slow
 @pytest.mark.parametrize("formulation", ["visibility", "density"])
-def test_partial_cover_counts_agree_across_tessellations(two_tessellations, formulation):
+def test_default_counts_agree_across_tessellations(two_tessellations, formulation):
+    """Issue 33 item 4: nothing but the formulation (and a shorter solver limit than the
+    default 60 s: both are proven optimal or within one view by then, measured), and the two
+    tessellations' counts agree within 10 % or one view, each covering its sampled area."""
+    from vpp_core.plan.pipeline import plan
+
     request = PlanRequest(
-        target=Target(resolution_mm=0.18, formulation=formulation, min_coverage=MIN_COVERAGE),
-        candidates=CandidateGenerator(count=500),
-        solver=SolverSettings(time_limit_s=15),
+        target=Target(formulation=formulation), solver=SolverSettings(time_limit_s=15)
     )
-    counts = partial_view_counts([(part, request) for part in two_tessellations])
-    assert abs(counts[0] - counts[1]) <= 1, counts
+    docs = [plan(part, request) for part in two_tessellations]
+    counts = [len(d.viewpoints) for d in docs]
+    assert abs(counts[0] - counts[1]) <= max(1, 0.1 * max(counts)), counts
+    for doc in docs:
+        rows = doc.cover_rows
+        assert rows is not None and rows.kind == "patches"
+        assert rows.sampled_area == pytest.approx(rows.max_sampled_area)
 
 
 @pytest.mark.slow
@@ -83,6 +92,7 @@ def test_tilted_candidates_keep_plate_holes_counts_within_one_across_tessellatio
     iso = isotropic_remesh(cad, 4.0)
     assert iso.area_mm2 == pytest.approx(cad.area_mm2, rel=0.01) and iso.n_faces > 10 * cad.n_faces
     request = PlanRequest(
+        profile="paper",
         target=Target(formulation="visibility", min_coverage=MIN_COVERAGE),
         candidates=CandidateGenerator(count=500, tilt_deg=30.0),
         solver=SolverSettings(time_limit_s=60),
@@ -98,6 +108,7 @@ def test_tilted_candidates_make_the_count_independent_of_the_seed():
     part = load_mesh((shared_dir(MESHES) / "featuretype.STL").read_bytes(), "stl", units="in")
     requests = [
         PlanRequest(
+            profile="paper",
             target=Target(formulation="visibility", min_coverage=MIN_COVERAGE),
             candidates=CandidateGenerator(count=500, seed=seed, tilt_deg=30.0),
             solver=SolverSettings(time_limit_s=5),  # both reach 6 by 1.5 s, proven at 10 s
@@ -133,6 +144,7 @@ def test_area_elements_make_a_cad_plan_see_what_it_claims(two_tessellations):
     cad, iso = (refine(part, 1.0) for part in two_tessellations)
     assert cad.n_faces > 3 * two_tessellations[0].n_faces and cad.areas.max() <= 1.0
     request = PlanRequest(
+        profile="paper",
         target=Target(formulation="visibility", min_coverage=MIN_COVERAGE),
         candidates=CandidateGenerator(count=500, tilt_deg=30.0),
         solver=SolverSettings(time_limit_s=30),
@@ -156,6 +168,7 @@ def test_remeshing_both_exports_makes_featuretype_counts_agree():
     exports = [cad, isotropic_remesh(cad, 1.0)]
     assert exports[1].n_faces > 20 * cad.n_faces
     request = PlanRequest(
+        profile="paper",
         target=Target(formulation="visibility", min_coverage=COMPARE_COVERAGE),
         candidates=CandidateGenerator(count=500, tilt_deg=30.0),
         solver=SolverSettings(time_limit_s=4),  # 21 and 20 by 1.5 s, as at 10 s

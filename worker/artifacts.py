@@ -31,7 +31,7 @@ import scipy.sparse as sp
 from vpp_core.camera.pose import Viewpoints
 from vpp_core.camera.sensor import Sensor
 from vpp_core.mesh.part import Part
-from vpp_core.plan.document import CandidateInfo, PlanDocument, PlanRequest
+from vpp_core.plan.document import CandidateInfo, CandidateOut, PlanDocument, PlanRequest
 from vpp_core.trace.raytrace import Trace
 from worker.store import Store
 
@@ -53,6 +53,21 @@ def trace_id(mesh_id: str, request: PlanRequest) -> str:
     """Content id of R: mesh, sensor, candidates and backend (not target or solver)."""
     dump = request.model_dump(mode="json", include={"sensor", "candidates", "backend"})
     return digest({"kind": "trace/1", "mesh_id": mesh_id, **dump})
+
+
+def pool_trace_id(mesh_id: str, request: PlanRequest, candidates: list[CandidateOut]) -> str:
+    """Content id of R over a candidate pool the adaptive rounds grew: mesh, sensor, backend
+    and every pose of the pool (the same pool is traced once)."""
+    dump = request.model_dump(mode="json", include={"sensor", "backend"})
+    poses = [c.model_dump(mode="json") for c in candidates]
+    return digest({"kind": "pool/1", "mesh_id": mesh_id, **dump, "poses": poses})
+
+
+def plan_trace_id(mesh_id: str, request: PlanRequest, doc: PlanDocument) -> str:
+    """The id of the R a plan document was made from: its request's, or its grown pool's."""
+    if doc.candidate_info.added:
+        return pool_trace_id(mesh_id, request, doc.candidates)
+    return trace_id(mesh_id, request)
 
 
 def mesh_key(mesh_id: str) -> str:

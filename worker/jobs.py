@@ -31,7 +31,7 @@ from vpp_core.camera.sensor import Sensor
 from vpp_core.errors import VppError
 from vpp_core.mesh.part import Part
 from vpp_core.plan.document import PlanRequest, Timings
-from vpp_core.plan.pipeline import candidates_for, check_limits, finish
+from vpp_core.plan.pipeline import candidates_for, check_limits, finish, grow
 from vpp_core.report.plots import plan_plots
 from vpp_core.report.scene import plan_scene
 from vpp_core.trace.rays import RayBackend
@@ -120,6 +120,12 @@ def _plan(ctx: Context, plan: str) -> dict[str, Any]:
     timings = Timings()
     views, info, trace, reused = _trace(ctx, part, request, trace_id, timings)
     progress = stage_progress(ctx.meta)
+    progress("adaptive", 0, 1)
+    start = time.perf_counter()
+    views, info, trace, rounds = grow(
+        part, request, views, info, trace, threads=ctx.settings.threads
+    )
+    timings.adaptive = round(time.perf_counter() - start, 4)
     doc = finish(
         part,
         request,
@@ -130,10 +136,14 @@ def _plan(ctx: Context, plan: str) -> dict[str, Any]:
         threads=ctx.settings.threads,
         progress=progress,
         reused=reused,
+        rounds=rounds,
     )
     ctx.meta.update(force=True, stage="plots")
     for name, png in plan_plots(part, doc).items():  # before the document: it means done
         ctx.store.put(art.plot_key(f"plans/{plan}", name), png)
+    if doc.candidate_info.added:  # R of the grown pool, for the scene and re-plans
+        pool = art.pool_trace_id(mesh_id, request, doc.candidates)
+        ctx.store.put(art.counts_key(pool), art.trace_bytes(trace))
     art.put_scene(ctx.store, plan, plan_scene(part, doc, trace.counts))
     art.put_plan(ctx.store, plan, doc)
     ctx.meta.update(force=True, stage="done")

@@ -136,5 +136,5 @@ def _le(bound: float) -> str:
 def render(conn: Redis, queues: Iterable[str]) -> bytes:
     """The metrics in the Prometheus text format."""
     registry = CollectorRegistry(auto_describe=False)
-    registry.register(RedisCollector(conn, queues))  # type: ignore[arg-type]
+    registry.register(RedisCollector(conn, queues))
     return generate_latest(registry)

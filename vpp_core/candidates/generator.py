@@ -1,20 +1,28 @@
-"""Candidate viewpoints (SPEC §2): spaced surface samples, camera along the smoothed normal.
+"""Candidate viewpoints (SPEC §2, amended): spaced surface samples, cameras looking back at them.
 
 1. Sample the (optionally decimated) planning mesh area-weighted and thin the samples to
    a minimum spacing (Poisson-disk-like), shrinking the spacing until `count` remain.
 2. Smooth each sample's normal over the faces within half a spacing (area-weighted, signs
    aligned to the sample's own face, so inconsistent orientation does not cancel out).
-3. Put the camera at the working distance along the normal, looking back at the sample.
-   Keep it if, on the *original* part, its central ray reaches the surface near the
+3. Put the camera at the stand-off distance along a gaze direction, looking back at the
+   sample. Keep it if, on the *original* part, its central ray reaches the surface near the
    sample (not occluded, not inside) and it stays `clearance_mm` away from the part;
-   otherwise try the opposite side; otherwise drop it.
+   otherwise try the next direction (each one on both sides of the surface); a sample no
+   direction serves is dropped.
 Seeded and deterministic.
 
-With `tilt_deg` > 0 (not SPEC §2's default), step 3 first tries directions drawn uniformly
-by solid angle within `tilt_deg` of the normal (TILT_TRIES of them, each side), then the
-normal itself. Along the normal, the candidates of a machined part look along a handful of
-face directions, and walls of holes and pockets are then seen by one candidate or none;
-tilted gazes see them from many (docs/cad-meshes.md).
+The directions: with `tilt_deg` > 0, TILT_TRIES directions drawn uniformly by solid angle
+within `tilt_deg` of the normal, then the normal itself; with `retry_tilt_deg` > 0, a sample
+still unplaced then tries RETRY_TRIES directions within that wider cone (a gaze into a
+pocket or past a boss that the normal's gaze cannot make). Along the normal, the candidates
+of a machined part look along a handful of face directions, and walls of holes and pockets
+are then seen by one candidate or none; tilted gazes see them from many (docs/cad-meshes.md).
+
+The stand-off: `standoff_mm`, or the working distance when None (the paper profile). The
+default profile asks `standoff_for` for the distance at which one pixel's footprint is
+1 / STANDOFF_MARGIN of the target resolution, so that one view head-on meets the target with
+room for obliquity (docs/quality.md); never farther than the working distance, never nearer
+than the depth of field allows.
 """
 
 from __future__ import annotations
@@ -40,6 +48,12 @@ CLEARANCE_SAMPLES = 20_000
 """Surface samples (plus all vertices) approximating the part for the clearance test."""
 TILT_TRIES = 3
 """Tilted directions tried per sample before the plain normal (tilt_deg > 0)."""
+RETRY_TRIES = 6
+"""Directions within retry_tilt_deg tried for a sample no earlier direction served."""
+STANDOFF_MARGIN = 1.2
+"""Target resolution / pixel footprint at the default stand-off (head-on density margin)."""
+DOF_MARGIN = 0.1
+"""Share of the depth of field kept free in front of the near limit at the stand-off."""
 
 
 @dataclass(frozen=True)
@@ -51,6 +65,8 @@ class GeneratorSettings:
     decimate: float | None = None  # fraction of faces kept in the planning mesh, (0, 1]
     clearance_mm: float = 20.0
     tilt_deg: float = 0.0  # largest angle between a gaze and the reversed normal, [0, 90)
+    retry_tilt_deg: float = 0.0  # wider cone tried before a sample is dropped (0: none)
+    standoff_mm: float | None = None  # camera-sample distance (None: the working distance)
 
 
 @dataclass(frozen=True)
@@ -61,6 +77,21 @@ class GeneratedCandidates:
     spacing_mm: float
     planning_faces: int
     dropped: int
+    standoff_mm: float
+
+
+def standoff_for(sensor: Sensor, resolution_mm: float) -> float:
+    """Stand-off (mm) at which a pixel's footprint is resolution / STANDOFF_MARGIN, within
+    [near + DOF_MARGIN · depth of field, working distance]."""
+    per_mm = max(sensor.pixel_pitch_mm(1.0), _pitch_y(sensor))
+    wanted = resolution_mm / (STANDOFF_MARGIN * per_mm)
+    nearest = sensor.near_mm + DOF_MARGIN * (sensor.far_mm - sensor.near_mm)
+    return float(min(sensor.working_distance, max(nearest, wanted)))
+
+
+def _pitch_y(sensor: Sensor) -> float:
+    """Footprint of one pixel along y at depth 1 mm (mm)."""
+    return float(2 * np.tan(np.radians(sensor.fov_y_deg) / 2) / sensor.height_px)
 
 
 def generate(
@@ -69,24 +100,37 @@ def generate(
     """Up to `settings.count` candidate viewpoints around the part (mm, part frame)."""
     if settings.count < 1:
         raise VppError("candidate count must be at least 1")
-    if not 0 <= settings.tilt_deg < 90:
-        raise VppError(f"tilt_deg must be in [0, 90), got {settings.tilt_deg}")
+    for name in ("tilt_deg", "retry_tilt_deg"):
+        if not 0 <= getattr(settings, name) < 90:
+            raise VppError(f"{name} must be in [0, 90), got {getattr(settings, name)}")
+    standoff = settings.standoff_mm or sensor.working_distance
+    if not sensor.near_mm <= standoff <= sensor.far_mm:
+        raise VppError(f"standoff {standoff} mm lies outside the depth of field")
     planning = planning_mesh(part, settings.decimate)
     points, face_index, spacing = spaced_samples(planning, settings.count, settings.seed)
     normals = smoothed_normals(planning, points, face_index, spacing / 2)
     backend = backend or make_backend(part)
-    directions = [normals]
-    if settings.tilt_deg > 0:
-        rng = np.random.default_rng([settings.seed, 1])
-        directions = [*(tilt(normals, settings.tilt_deg, rng) for _ in range(TILT_TRIES)), normals]
-    positions, gazes = _place(part, sensor, backend, points, directions, settings.clearance_mm)
+    directions = gaze_directions(normals, settings)
+    positions, gazes = place(part, backend, points, directions, standoff, settings.clearance_mm)
     keep = np.isfinite(positions).all(axis=1)
     return GeneratedCandidates(
         views=make_viewpoints(positions[keep], gazes[keep]),
         spacing_mm=spacing,
         planning_faces=len(planning.faces),
         dropped=int((~keep).sum()),
+        standoff_mm=standoff,
     )
+
+
+def gaze_directions(normals: np.ndarray, settings: GeneratorSettings) -> list[np.ndarray]:
+    """The (k, 3) direction sets tried in turn: tilted, the normal, then the wider retries."""
+    rng = np.random.default_rng([settings.seed, 1])
+    directions = [tilt(normals, settings.tilt_deg, rng) for _ in range(TILT_TRIES)]
+    directions = [*directions, normals] if settings.tilt_deg > 0 else [normals]
+    if settings.retry_tilt_deg > 0:
+        retry = np.random.default_rng([settings.seed, 2])
+        directions += [tilt(normals, settings.retry_tilt_deg, retry) for _ in range(RETRY_TRIES)]
+    return directions
 
 
 def planning_mesh(part: Part, decimate: float | None) -> trimesh.Trimesh:
@@ -166,16 +210,15 @@ def tilt(normals: np.ndarray, max_deg: float, rng: np.random.Generator) -> np.nd
     return np.asarray(cos_t[:, None] * normals + np.sqrt(1 - cos_t * cos_t)[:, None] * side)
 
 
-def _place(
+def place(
     part: Part,
-    sensor: Sensor,
     backend: RayBackend,
     points: np.ndarray,
     directions: list[np.ndarray],
+    wd: float,
     clearance_mm: float,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(k, 3) camera positions (NaN = dropped) and gazes: per direction set, +d then -d."""
-    wd = sensor.working_distance
+    """(k, 3) camera positions at `wd` mm (NaN = dropped) and gazes: per set, +d then -d."""
     tree = _surface_tree(part)
     positions = np.full_like(points, np.nan)
     gazes = -directions[-1].copy()

@@ -29,6 +29,7 @@ from pydantic import BaseModel
 
 from vpp_core.camera.pose import Viewpoints
 from vpp_core.camera.sensor import Sensor
+from vpp_core.cover.density import CoverModel
 from vpp_core.cover.problem import COVER_TOL, coverage
 from vpp_core.mesh.part import Part
 from vpp_core.trace.rays import RayBackend
@@ -117,14 +118,13 @@ def diagnose(
     sensor: Sensor,
     views: Viewpoints,
     counts: sp.sparray,
-    matrix: sp.csr_array,
-    rows: np.ndarray,
+    model: CoverModel,
     selected: np.ndarray,
     backend: RayBackend,
     partial: bool = False,
     normal_candidates: bool = False,
 ) -> Diagnostics:
-    """Diagnostics of `views` `selected` (K,) given R (M, N) and the cover rows (faces `rows`).
+    """Diagnostics of `views` `selected` (K,) given R (M, N) and the cover's rows (`model`).
 
     `partial`: a partial cover was asked for (no coverage hint); `normal_candidates`: the
     candidates were generated along the normals (tilt 0), so a tilt may be suggested.
@@ -135,23 +135,23 @@ def diagnose(
     r = sp.csr_array(counts)
     seen_by = np.diff(r.indptr)
     single = counted & (seen_by == 1)
-    private = private_rows(matrix, selected)
+    private = private_rows(model.matrix, selected)
     hard = np.flatnonzero(single | (counted & (seen_by == 0)))
-    mine = np.unique(rows[private.indices])
+    mine = model.faces_of(private.indices)
     suspects = np.concatenate([mine, np.setdiff1d(hard, mine)])  # private faces first
     enclosed = np.zeros(part.n_faces, dtype=bool)
     tested = suspects[:MAX_ESCAPE_FACES]
     enclosed[tested] = enclosed_faces(part, tested, backend)
     b2b = back_to_back(part)
     weak = subpixel | single | enclosed | b2b
-    causes = _causes(private, rows, selected, areas, weak)
+    causes = _causes(private, model, selected, areas, weak)
     driven = [c for c in causes if c.driven]
     driven_area = float(sum(c.private_area_mm2 for c in driven))
     first = r.indptr[:-1][single]
     rays = r.data[first]
     forced = np.intersect1d(r.indices[first[rays >= WELL_SEEN_RAYS]], selected)
     under = undersampled(part, sensor, views, r, selected, ELEMENT_FOOTPRINTS * p * p)
-    coverable = float(areas[rows].sum())
+    coverable = float(areas[model.faces].sum())
     return Diagnostics(
         pixel_footprint_mm=p,
         subpixel=_group(subpixel, areas),
@@ -288,15 +288,15 @@ def _frame(normal: np.ndarray) -> np.ndarray:
 
 def _causes(
     private: sp.csc_array,
-    rows: np.ndarray,
+    model: CoverModel,
     selected: np.ndarray,
     areas: np.ndarray,
     weak: np.ndarray,
 ) -> list[ViewCause]:
-    """One ViewCause per selected view from its private rows (faces `rows[i]`)."""
+    """One ViewCause per selected view from the faces of its private rows."""
     out = []
     for k, j in enumerate(selected):
-        faces = rows[private.indices[private.indptr[k] : private.indptr[k + 1]]]
+        faces = model.faces_of(private.indices[private.indptr[k] : private.indptr[k + 1]])
         w = weak[faces]
         out.append(
             ViewCause(

@@ -4,15 +4,38 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, BeforeValidator, ConfigDict, Field
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, model_validator
 
 from vpp_core.camera.sensor import Sensor
+from vpp_core.candidates.generator import standoff_for
 from vpp_core.plan.cycle import Objective, TourOut
 from vpp_core.plan.diagnostics import Diagnostics
 from vpp_core.plan.metrics import Metrics
 from vpp_core.trace.rays import DEFAULT_BACKEND, BackendName
 
 Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
+
+Profile = Literal["default", "paper"]
+PROFILES: dict[str, dict[str, object]] = {
+    "default": {
+        "tilt_deg": 30.0,
+        "retry_tilt_deg": 60.0,
+        "standoff": "target",
+        "rows": "patches",
+        "min_coverage": 0.999,
+        "adaptive": True,
+    },
+    "paper": {
+        "tilt_deg": 0.0,
+        "retry_tilt_deg": 0.0,
+        "standoff": "working",
+        "rows": "faces",
+        "min_coverage": 1.0,
+        "adaptive": False,
+    },
+}
+"""What each profile fills in where a request leaves a field out (docs/quality.md): `default`,
+the project's best by bench/quality.py; `paper`, SPEC §2-4 as the paper wrote them."""
 
 
 class _Strict(BaseModel):
@@ -24,12 +47,25 @@ class Target(_Strict):
 
     resolution_mm: float = Field(0.18, gt=0, le=1e4)
     formulation: Literal["density", "visibility"] = "density"
-    min_coverage: float = Field(
-        1.0,
+    min_coverage: float | None = Field(
+        None,
         gt=0,
         le=1,
-        description="fraction of the coverable area to cover; 1 = every coverable face "
-        "(SPEC §3-4); below 1 a partial cover may leave small faces out",
+        description="fraction of the coverable area to cover; 1 = every coverable row "
+        "(SPEC §3-4); below 1 a partial cover may leave small areas out, listed in the plan's "
+        "`partial.left_out`; default: the profile's (0.999; paper: 1)",
+    )
+
+    @property
+    def fraction(self) -> float:
+        """min_coverage, 1 where left out (a request fills it from its profile)."""
+        return 1.0 if self.min_coverage is None else self.min_coverage
+
+    rows: Literal["patches", "faces"] | None = Field(
+        None,
+        description="what a row of the cover is: `patches` (faces grouped into pieces of "
+        "surface about 5 r̄ across, R and area summed: coverage of sampled area, whatever the "
+        "tessellation) or `faces` (one row per face, SPEC §3); default: the profile's",
     )
 
 
@@ -40,12 +76,33 @@ class CandidateGenerator(_Strict):
     seed: int = Field(0, ge=0)
     decimate: float | None = Field(None, gt=0, le=1, description="fraction of faces kept")
     clearance_mm: float = Field(20.0, ge=0, description="least camera distance to the part")
-    tilt_deg: float = Field(
-        0.0,
+    tilt_deg: float | None = Field(
+        None,
         ge=0,
         lt=90,
         description="gazes drawn within this angle of the smoothed normal (0: along it, SPEC §2); "
-        "30 lets holes and pocket walls be seen by many candidates (docs/cad-meshes.md)",
+        "default: the profile's (30, which lets holes and pocket walls be seen by many "
+        "candidates; paper: 0)",
+    )
+    retry_tilt_deg: float | None = Field(
+        None,
+        ge=0,
+        lt=90,
+        description="a sample whose gazes are all blocked tries directions within this wider "
+        "angle before it is dropped (0: dropped); default: the profile's (60; paper: 0)",
+    )
+    standoff_mm: float | None = Field(
+        None,
+        gt=0,
+        description="camera-sample distance, within the depth of field; default: the profile's "
+        "(the distance where a pixel's footprint is r̄ / 1.2, at most the working distance; "
+        "paper: the working distance)",
+    )
+    adaptive: bool | None = Field(
+        None,
+        description="after a quick cover, add candidates aimed at the rows that force views, "
+        "trace only those and cover again, while the count improves (docs/quality.md); "
+        "default: the profile's (on; paper: off)",
     )
 
 
@@ -76,13 +133,25 @@ class SolverSettings(_Strict):
     """Set-cover solver: exact MILP (HiGHS) or greedy with redundancy removal."""
 
     name: Literal["milp", "greedy"] = "milp"
-    time_limit_s: float = Field(60.0, gt=0, le=86_400)
+    time_limit_s: float = Field(
+        60.0,
+        gt=0,
+        le=86_400,
+        description="seconds for every cover of the plan: the adaptive rounds' quick covers "
+        "and the final one (which gets at least half)",
+    )
     mip_rel_gap: float = Field(0.0, ge=0, lt=1)
 
 
 class PlanRequest(_Strict):
-    """Everything a plan depends on besides the mesh."""
+    """Everything a plan depends on besides the mesh; fields left out take the profile's."""
 
+    profile: Profile = Field(
+        "default",
+        description="`default`: the project's best plans (tilted gazes, retries, stand-off from "
+        "the target, patch rows; docs/quality.md); `paper`: the paper's method as SPEC §2-4 "
+        "first wrote it (gazes along the normal at the working distance, face rows)",
+    )
     sensor: Sensor = Sensor()
     target: Target = Target()
     candidates: Candidates = Field(default_factory=CandidateGenerator)
@@ -95,6 +164,33 @@ class PlanRequest(_Strict):
         "(Embree packets of 4 × 4 pixel rays) or `embree` (one Embree ray per pixel); they "
         "agree but for pixel centres on triangle edges",
     )
+
+    @model_validator(mode="after")
+    def _fill_profile(self) -> PlanRequest:
+        """Fill the fields left out (None) with the profile's values."""
+        chosen = PROFILES[self.profile]
+        fill = {k: chosen[k] for k in ("rows", "min_coverage") if getattr(self.target, k) is None}
+        self.target = self.target.model_copy(update=fill)
+        spec = self.candidates
+        if isinstance(spec, CandidateGenerator):
+            s = self.sensor
+            if spec.standoff_mm is not None and not s.near_mm <= spec.standoff_mm <= s.far_mm:
+                raise ValueError(
+                    f"candidates.standoff_mm ({spec.standoff_mm}) must lie in the depth of field "
+                    f"[{s.near_mm}, {s.far_mm}] mm"
+                )
+            by_target = standoff_for(self.sensor, self.target.resolution_mm)
+            standoff = by_target if chosen["standoff"] == "target" else None
+            update = {
+                "tilt_deg": chosen["tilt_deg"] if spec.tilt_deg is None else spec.tilt_deg,
+                "retry_tilt_deg": spec.retry_tilt_deg
+                if spec.retry_tilt_deg is not None
+                else chosen["retry_tilt_deg"],
+                "standoff_mm": spec.standoff_mm or standoff or self.sensor.working_distance,
+                "adaptive": chosen["adaptive"] if spec.adaptive is None else spec.adaptive,
+            }
+            self.candidates = spec.model_copy(update=update)
+        return self
 
 
 class MeshInfo(BaseModel):
@@ -134,6 +230,24 @@ class CandidateInfo(BaseModel):
     seed: int | None = None
     decimate: float | None = None
     tilt_deg: float | None = None
+    retry_tilt_deg: float | None = None
+    standoff_mm: float | None = None
+    added: int = 0
+    """Candidates added by the adaptive rounds (their ids follow the generated ones)."""
+
+
+class AdaptiveRound(BaseModel):
+    """One round of adaptive candidates: the quick cover of the pool, and what it added."""
+
+    round: int
+    candidates: int
+    """Candidates in the pool the quick cover chose from."""
+    views: int
+    bound: float | None
+    status: str
+    added: int
+    """Candidates aimed at this cover's forcing rows and added to the pool."""
+    seconds: float
 
 
 class SolverOut(BaseModel):
@@ -157,6 +271,28 @@ class Uncoverable(BaseModel):
     ids: list[int]
 
 
+class CoverRows(BaseModel):
+    """What the rows of the cover were: faces, or patches of faces (target.rows)."""
+
+    kind: Literal["patches", "faces"]
+    count: int
+    """Distinct rows: patches with at least one counted face, or counted faces."""
+    edge_mm: float | None = None
+    """The patch size asked for (mm): sqrt(25) r̄, larger on very large parts."""
+    sampled_area: float | None = None
+    """Share of the counted area in patches the selected views sample (3 rays or more)."""
+    max_sampled_area: float | None = None
+    """The same with every candidate: what the candidates reach."""
+    met_area: float | None = None
+    """Share of the counted area in patches whose density from the selected views,
+    Σ_j sqrt(R_pj / A_p), reaches 1 / r̄: the target met on sampled area."""
+    patch_of_face: list[int] | None = None
+    """Per face, its patch (-1: not counted): R and area summed over a patch give its row."""
+    unsampled: Uncoverable | None = None
+    """Counted faces that rays of some candidate hit, but in patches that no candidate samples
+    with STRAY_RAYS (3) rays or more (grazing rays only): not in the cover."""
+
+
 class LeftOut(Uncoverable):
     """Coverable faces a partial cover leaves out."""
 
@@ -177,6 +313,7 @@ class Timings(BaseModel):
     load: float = 0.0
     candidates: float = 0.0
     trace: float = 0.0
+    adaptive: float = 0.0
     matrices: float = 0.0
     solve: float = 0.0
     metrics: float = 0.0
@@ -214,6 +351,8 @@ class PlanDocument(BaseModel):
     solver: SolverOut
     metrics: Metrics
     uncoverable: Uncoverable
+    cover_rows: CoverRows | None = None
+    adaptive: list[AdaptiveRound] = []
     partial: PartialInfo | None = None
     diagnostics: Diagnostics | None = None
     rays: RaysInfo

@@ -8,19 +8,24 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.sparse as sp
 
 from vpp_core.camera.pose import Viewpoints, make_viewpoints
 from vpp_core.candidates.generator import GeneratorSettings, generate
-from vpp_core.cover.density import CoverModel, cover_model
+from vpp_core.cover.density import CoverModel, cover_model, meets, stray_free
 from vpp_core.cover.partial import PartialCover, solve_partial
+from vpp_core.cover.patches import Patches, make_patches, patch_edge
 from vpp_core.errors import LimitError
 from vpp_core.mesh.part import Part
+from vpp_core.plan.adaptive import adapt
 from vpp_core.plan.cycle import TourOut, make_tour
 from vpp_core.plan.diagnostics import diagnose
 from vpp_core.plan.document import (
+    AdaptiveRound,
     CandidateGenerator,
     CandidateInfo,
     CandidateOut,
+    CoverRows,
     LeftOut,
     MeshInfo,
     PartialInfo,
@@ -41,6 +46,9 @@ from vpp_core.plan.tour import path_length
 from vpp_core.trace.rays import RayBackend
 from vpp_core.trace.raytrace import Trace, make_backend, trace_counts
 
+FINAL_SHARE = 0.5
+"""The final cover gets at least this share of the solver's time limit."""
+
 Progress = Callable[[str, int, int], None]
 """progress(stage, done, total): called as stages start and as viewpoints are traced."""
 
@@ -60,7 +68,13 @@ def candidates_for(
     spec = request.candidates
     if isinstance(spec, CandidateGenerator):
         settings = GeneratorSettings(
-            spec.count, spec.seed, spec.decimate, spec.clearance_mm, spec.tilt_deg
+            spec.count,
+            spec.seed,
+            spec.decimate,
+            spec.clearance_mm,
+            spec.tilt_deg or 0.0,
+            spec.retry_tilt_deg or 0.0,
+            spec.standoff_mm,
         )
         gen = generate(part, request.sensor, settings, backend)
         info = CandidateInfo(
@@ -73,6 +87,8 @@ def candidates_for(
             seed=spec.seed,
             decimate=spec.decimate,
             tilt_deg=spec.tilt_deg,
+            retry_tilt_deg=spec.retry_tilt_deg,
+            standoff_mm=gen.standoff_mm,
         )
         return gen.views, info
     n = len(spec.viewpoints)
@@ -111,6 +127,14 @@ def check_request(request: PlanRequest, limits: Limits) -> None:
         explicit_viewpoints(spec.viewpoints)  # ViewpointError now
 
 
+def _left(settings: SolverSettings, rounds: Sequence[AdaptiveRound]) -> SolverSettings:
+    """The solver settings with the adaptive rounds' time taken off the limit (the limit is the
+    budget of every cover of the plan), at least FINAL_SHARE of it."""
+    limit = settings.time_limit_s
+    spent = sum(r.seconds for r in rounds)
+    return settings.model_copy(update={"time_limit_s": max(FINAL_SHARE * limit, limit - spent)})
+
+
 def solve(
     model: CoverModel,
     areas: np.ndarray,
@@ -123,8 +147,8 @@ def solve(
     columns at `costs` (N,) (None: one each)."""
     return solve_partial(
         model.matrix,
-        areas[model.faces],
-        target.min_coverage,
+        model.row_areas(areas),
+        target.fraction,
         costs,
         method=settings.name,
         time_limit=settings.time_limit_s,
@@ -172,6 +196,8 @@ def plan(
         trace = trace_counts(
             part, request.sensor, views, backend=backend, threads=threads, progress=done
         )
+    with clock.stage("adaptive"):
+        views, info, trace, rounds = grow(part, request, views, info, trace, backend, threads)
     return finish(
         part,
         request,
@@ -182,6 +208,7 @@ def plan(
         threads=threads,
         progress=progress,
         backend=backend,
+        rounds=rounds,
     )
 
 
@@ -197,19 +224,22 @@ def finish(
     progress: Progress | None = None,
     reused: bool = False,
     backend: RayBackend | None = None,
+    rounds: Sequence[AdaptiveRound] = (),
 ) -> PlanDocument:
     """From R on: matrices, cover, visiting order, metrics, diagnostics and the document."""
     clock = _Clock(progress, timings)
     with clock.stage("matrices"):
+        patches = cover_patches(part, request.target)
         model = cover_model(
             trace.counts,
             part.areas,
             part.counted,
             request.target.resolution_mm,
             request.target.formulation,
+            patches,
         )
     with clock.stage("solve"):
-        cover = solve(model, part.areas, request.target, request.solver, threads)
+        cover = solve(model, part.areas, request.target, _left(request.solver, rounds), threads)
         cover, tour = by_objective(
             cover,
             request.objective,
@@ -224,16 +254,91 @@ def finish(
             request.sensor,
             views,
             trace.counts,
-            model.matrix,
-            model.faces,
+            model,
             cover.result.selected,
             backend or make_backend(part, trace.backend),
-            partial=request.target.min_coverage < 1,
+            partial=request.target.fraction < 1,
             normal_candidates=info.source == "generated" and not info.tilt_deg,
         )
     doc.timings_s = clock.timings
     doc.rays.reused = reused
+    chosen = np.array([v.id for v in doc.viewpoints], dtype=np.int64)
+    doc.cover_rows = _cover_rows(part, request.target, patches, model, trace, chosen)
+    doc.adaptive = list(rounds)
     return doc
+
+
+def grow(
+    part: Part,
+    request: PlanRequest,
+    views: Viewpoints,
+    info: CandidateInfo,
+    trace: Trace,
+    backend: RayBackend | None = None,
+    threads: int | None = None,
+) -> tuple[Viewpoints, CandidateInfo, Trace, list[AdaptiveRound]]:
+    """The candidate pool grown by the adaptive rounds (vpp_core.plan.adaptive), its R and
+    the rounds; unchanged when the request does not ask for them."""
+    patches = cover_patches(part, request.target)
+    t = request.target
+
+    def model_of(tr: Trace) -> CoverModel:
+        args = (tr.counts, part.areas, part.counted, t.resolution_mm, t.formulation, patches)
+        return cover_model(*args)
+
+    def quick(model: CoverModel, seconds: float) -> PartialCover:
+        settings = request.solver.model_copy(update={"name": "greedy", "time_limit_s": seconds})
+        return solve(model, part.areas, t, settings, threads)
+
+    backend = backend or make_backend(part, trace.backend)
+    pool = adapt(part, request, views, trace, backend, model_of, quick, threads=threads)
+    added = len(pool.views) - len(views)
+    return pool.views, info.model_copy(update={"added": added}), pool.trace, pool.rounds
+
+
+def _cover_rows(
+    part: Part,
+    target: Target,
+    patches: Patches | None,
+    model: CoverModel,
+    trace: Trace,
+    chosen: np.ndarray,
+) -> CoverRows:
+    """What the cover's rows were, what the plan samples of the patches' area, and the faces
+    hit only by rays too few to sample them."""
+    if patches is None:
+        return CoverRows(kind="faces", count=int(part.counted.sum()))
+    unsampled = np.setdiff1d(model.uncoverable, spec_uncoverable(part, trace))
+    r = stray_free(patches.sum_rows(trace.counts))
+    total = patches.areas.sum()
+    sampled_by_any = np.diff(r.indptr) > 0
+    mine = sp.csr_array(r[:, chosen])
+    density = np.sqrt(mine.multiply(1.0 / patches.areas[:, None]).tocsr()).sum(axis=1)
+    return CoverRows(
+        kind="patches",
+        count=patches.count,
+        edge_mm=patches.edge_mm,
+        sampled_area=float(patches.areas[np.diff(mine.indptr) > 0].sum() / total),
+        max_sampled_area=float(patches.areas[sampled_by_any].sum() / total),
+        met_area=float(patches.areas[meets(density, 1 / target.resolution_mm)].sum() / total),
+        patch_of_face=patches.of_face.tolist(),
+        unsampled=_uncoverable(part, unsampled),
+    )
+
+
+def spec_uncoverable(part: Part, trace: Trace) -> np.ndarray:
+    """Counted faces that no candidate's ray hits (SPEC §3), ascending."""
+    seen = np.diff(sp.csr_array(trace.counts).indptr) > 0
+    return np.flatnonzero(part.counted & ~seen)
+
+
+def cover_patches(part: Part, target: Target) -> Patches | None:
+    """The patches the cover's rows are made of, or None for one row per face (target.rows)."""
+    if target.rows == "faces":
+        return None
+    edge = patch_edge(target.resolution_mm, float(part.areas[part.counted].sum()))
+    centres = part.vertices[part.faces].mean(axis=1)
+    return make_patches(centres, part.normals, part.areas, part.counted, edge)
 
 
 def _counter(progress: Progress | None, stage: str, total: int) -> Callable[[int], None]:
@@ -284,12 +389,8 @@ def document(
             cols=result.cols,
         ),
         metrics=metrics,
-        uncoverable=Uncoverable(
-            faces=len(model.uncoverable),
-            area_mm2=float(part.areas[model.uncoverable].sum()),
-            ids=model.uncoverable.tolist(),
-        ),
-        partial=_partial_info(part, model, cover, request.target.min_coverage),
+        uncoverable=_uncoverable(part, spec_uncoverable(part, trace)),
+        partial=_partial_info(part, model, cover, request.target.fraction),
         rays=RaysInfo(
             backend=trace.backend,
             per_view=request.sensor.n_pixels,
@@ -300,6 +401,13 @@ def document(
             trace_s=round(trace.seconds, 4),
         ),
         timings_s=timings,
+    )
+
+
+def _uncoverable(part: Part, faces: np.ndarray) -> Uncoverable:
+    """The document's record of the faces `faces`."""
+    return Uncoverable(
+        faces=len(faces), area_mm2=float(part.areas[faces].sum()), ids=faces.tolist()
     )
 
 
@@ -321,7 +429,7 @@ def _partial_info(
     if fraction >= 1.0:
         return None
     areas = part.areas[model.faces]
-    left = model.faces[~cover.satisfied]
+    left = model.faces_of(~cover.satisfied)
     total = float(areas.sum())
     return PartialInfo(
         min_coverage=fraction,

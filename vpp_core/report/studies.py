@@ -34,6 +34,7 @@ from vpp_core.plan.pipeline import (
     candidates_for,
     check_limits,
     check_request,
+    cover_patches,
     document,
     mesh_info,
     solve,
@@ -159,21 +160,29 @@ class _Solver:
     def __init__(self, part: Part, trace: Trace, threads: int | None) -> None:
         self.part, self.trace, self.threads = part, trace, threads
         self.seconds: list[float] = []
-        self._visibility: dict[float, PartialCover] = {}
+        self._visibility: dict[tuple[float, float | None], PartialCover] = {}
 
     def cover(self, request: PlanRequest) -> tuple[PartialCover, CoverModel]:
-        """The cover for `request.target` on this R (visibility solved once: V has no r̄)."""
+        """The cover for `request.target` on this R (visibility solved once per row set: V has
+        no r̄, but patch rows are sized by it)."""
         t = request.target
         start = time.perf_counter()
+        patches = cover_patches(self.part, t)
         model = cover_model(
-            self.trace.counts, self.part.areas, self.part.counted, t.resolution_mm, t.formulation
+            self.trace.counts,
+            self.part.areas,
+            self.part.counted,
+            t.resolution_mm,
+            t.formulation,
+            patches,
         )
-        if t.formulation == "visibility" and t.min_coverage in self._visibility:
-            cover = self._visibility[t.min_coverage]
+        key = (t.fraction, patches.edge_mm if patches else None)
+        if t.formulation == "visibility" and key in self._visibility:
+            cover = self._visibility[key]
         else:
             cover = solve(model, self.part.areas, t, request.solver, self.threads)
             if t.formulation == "visibility":
-                self._visibility[t.min_coverage] = cover
+                self._visibility[key] = cover
         self.seconds.append(round(time.perf_counter() - start, 4))
         return cover, model
 

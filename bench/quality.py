@@ -1,0 +1,138 @@
+"""Plan quality on real meshes: the default against the paper profile, today's best flags and
+the view-sphere baseline; one JSON line per (mesh, formulation, setting).
+
+    python bench/quality.py [MESH...] [--formulations density visibility]
+                            [--settings default paper tilt best] [--time-limit 60]
+                            [--sphere 1000] [--out DIR]
+
+Every setting runs `vpp plan MESH --units U ... -q -o DIR/<name>.json` as a child process (the
+paper's camera, r̄ = 0.18 mm, seed 0) and reports its count, solver status and bound, the
+SPEC §5 coverage and met area (per face), the patch figures of the default (sampled and met
+area), wall time and the child's peak RSS. The settings:
+
+- `default`: nothing but --units (and --formulation);
+- `paper`: --profile paper (the previous default: gazes along the normal at 500 mm, face rows);
+- `tilt`: --profile paper --tilt 30 --min-coverage 0.999 (the flags docs/cad-meshes.md named);
+- `best`: the same with --candidates 2000.
+
+`sphere` lines give what `--sphere` viewpoints on view spheres around the part reach
+(vpp_core.candidates.sphere), traced in this process: the share of the counted area any of
+them sees (per face, SPEC §5) and the share of the patch area they sample. Meshes and units as
+bench/plan.py takes them (../shared/meshes and its MANIFEST.csv by default).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "bench"))
+
+from plan import default_meshes, manifest_units, run_child, vpp_command  # noqa: E402
+
+from vpp_core.camera.sensor import Sensor  # noqa: E402
+from vpp_core.candidates.sphere import view_sphere  # noqa: E402
+from vpp_core.cover.density import stray_free  # noqa: E402
+from vpp_core.mesh.tessellate import load_part  # noqa: E402
+from vpp_core.plan.document import Target  # noqa: E402
+from vpp_core.plan.metrics import evaluate  # noqa: E402
+from vpp_core.plan.pipeline import cover_patches  # noqa: E402
+from vpp_core.trace.raytrace import trace_counts  # noqa: E402
+
+SETTINGS = {
+    "default": [],
+    "paper": ["--profile", "paper"],
+    "tilt": ["--profile", "paper", "--tilt", "30", "--min-coverage", "0.999"],
+    "best": ["--profile", "paper", "--tilt", "30", "--min-coverage", "0.999"]
+    + ["--candidates", "2000"],
+}
+
+
+def run_setting(
+    mesh: Path, units: str, formulation: str, setting: str, args: argparse.Namespace, out: Path
+) -> dict[str, Any]:
+    """One `vpp plan` child; its figures as a JSON-able dict."""
+    doc_path = out / f"{mesh.stem}-{formulation}-{setting}.json"
+    cmd = [*vpp_command(), "plan", str(mesh), "--units", units, "--formulation", formulation]
+    cmd += ["--time-limit", str(args.time_limit), *SETTINGS[setting], "-q", "-o", str(doc_path)]
+    code, wall, rss, err, killed = run_child(cmd, args.time_limit * 6 + 300)
+    line: dict[str, Any] = {"mesh": mesh.name, "formulation": formulation, "setting": setting}
+    line |= {"wall_s": round(wall, 2), "peak_rss_mib": round(rss)}
+    if code != 0:
+        return line | {"error": (err.strip().splitlines() or ["killed"])[-1], "killed": killed}
+    doc = json.loads(doc_path.read_text())
+    m, s, rows = doc["metrics"], doc["solver"], doc.get("cover_rows") or {}
+    return line | {
+        "views": len(doc["viewpoints"]),
+        "candidates": len(doc["candidates"]),
+        "status": s["status"],
+        "bound": s["bound"],
+        "coverage_area": round(m["coverage"]["area"], 4),
+        "max_area": round(m["coverage"]["max_area"], 4),
+        "met_area": round(m["resolution"]["met_area"], 4),
+        "patch_sampled": rows.get("sampled_area"),
+        "patch_met": rows.get("met_area"),
+        "rounds": [(r["candidates"], r["views"], r["added"]) for r in doc.get("adaptive", [])],
+    }
+
+
+def sphere_reach(mesh: Path, units: str, count: int) -> dict[str, Any]:
+    """What `count` view-sphere viewpoints reach of the part (faces seen, patches sampled)."""
+    part = load_part(mesh.read_bytes(), mesh.suffix[1:].lower(), units)
+    sensor = Sensor()
+    views = view_sphere(part, sensor, count)
+    counts = trace_counts(part, sensor, views).counts
+    every = sorted(range(len(views)))
+    metrics = evaluate(counts, part.areas, part.counted, every, 0.18)  # type: ignore[arg-type]
+    patches = cover_patches(part, Target(rows="patches"))
+    assert patches is not None
+    r = stray_free(patches.sum_rows(counts))
+    sampled = patches.areas[np.diff(r.indptr) > 0].sum() / patches.areas.sum()
+    return {
+        "mesh": mesh.name,
+        "setting": "sphere",
+        "views": len(views),
+        "max_area": round(metrics.coverage.max_area, 4),
+        "max_met_area": round(metrics.resolution.max_met_area, 4),
+        "patch_sampled": round(float(sampled), 4),
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the settings on the meshes; JSON lines on stdout."""
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("meshes", nargs="*", type=Path)
+    ap.add_argument("--formulations", nargs="+", default=["density", "visibility"])
+    ap.add_argument("--settings", nargs="+", default=list(SETTINGS), choices=list(SETTINGS))
+    ap.add_argument("--time-limit", type=float, default=60.0)
+    ap.add_argument("--sphere", type=int, default=1000, help="view-sphere viewpoints (0: none)")
+    ap.add_argument("--out", type=Path, help="keep the plan documents here")
+    args = ap.parse_args(argv)
+    meshes = args.meshes or default_meshes()
+    if not meshes:
+        print("no meshes: ../shared/meshes is absent", file=sys.stderr)
+        return 0
+    units = manifest_units(meshes[0].parent)
+    out = args.out or Path(tempfile.mkdtemp(prefix="vpp-quality-"))
+    out.mkdir(parents=True, exist_ok=True)
+    for mesh in meshes:
+        unit = units.get(mesh.name, "mm")
+        if args.sphere:
+            print(json.dumps(sphere_reach(mesh, unit, args.sphere)), flush=True)
+        for formulation in args.formulations:
+            for setting in args.settings:
+                line = run_setting(mesh, unit, formulation, setting, args, out)
+                print(json.dumps(line), flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

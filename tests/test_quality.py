@@ -1,0 +1,166 @@
+"""Good plans by default (issue 33): stand-off, patch rows, stray rays, profiles, adaptive
+candidates and the view-sphere baseline, each against a direct computation."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+import trimesh
+
+from vpp_core.camera.sensor import Sensor
+from vpp_core.candidates.generator import STANDOFF_MARGIN, standoff_for
+from vpp_core.candidates.sphere import fibonacci_directions, view_sphere
+from vpp_core.cover.density import STRAY_RAYS, cover_model, stray_free
+from vpp_core.cover.patches import make_patches
+from vpp_core.mesh.part import Part, load_mesh, part_from_arrays
+from vpp_core.plan.document import CandidateGenerator, PlanRequest, SolverSettings, Target
+from vpp_core.samples import sample_stl
+
+PAPER = Sensor()
+SMALL = Sensor(width_px=320, height_px=200, fov_x_deg=38.7, fov_y_deg=24.75)
+
+
+def test_the_standoff_puts_a_pixel_at_the_target_over_the_margin():
+    d = standoff_for(PAPER, 0.18)
+    assert PAPER.near_mm < d < PAPER.working_distance
+    assert PAPER.pixel_pitch_mm(d) == pytest.approx(0.18 / STANDOFF_MARGIN, rel=1e-9)
+    assert standoff_for(PAPER, 5.0) == PAPER.working_distance  # coarse: the preference
+    unreachable = standoff_for(PAPER, 0.01)  # finer than any depth allows: as near as DOF lets
+    assert unreachable == pytest.approx(PAPER.near_mm + 0.1 * (PAPER.far_mm - PAPER.near_mm))
+
+
+def thin_plate() -> Part:
+    """A 40 × 30 × 0.5 mm plate: its two large sides face away from each other 0.5 mm apart."""
+    box = trimesh.creation.box([40, 30, 0.5])
+    vertices, faces = trimesh.remesh.subdivide_to_size(box.vertices, box.faces, max_edge=1.2)
+    return part_from_arrays(vertices, faces)
+
+
+def patches_of(part: Part, edge: float):
+    centres = part.vertices[part.faces].mean(axis=1)
+    return make_patches(centres, part.normals, part.areas, part.counted, edge)
+
+
+def test_patches_partition_the_surface_and_never_join_opposite_sides():
+    part = thin_plate()
+    patches = patches_of(part, 3.0)
+    counted = part.counted
+    assert (patches.of_face[counted] >= 0).all() and (patches.of_face[~counted] == -1).all()
+    assert patches.areas.sum() == pytest.approx(part.areas[counted].sum())
+    for p in range(patches.count):
+        faces = np.flatnonzero(patches.of_face == p)
+        normals = part.normals[faces]
+        assert (normals @ normals[0] > 0).all()  # one side of the plate only
+        centres = part.vertices[part.faces[faces]].mean(axis=1)
+        assert np.ptp(centres, axis=0).max() <= 4 * 3.0  # about one edge across
+    top = part.normals[:, 2] > 0.9
+    assert patches.areas.sum() / patches.count == pytest.approx(3.0**2, rel=0.4)  # edge²
+    assert len(np.unique(patches.of_face[top])) >= (40 * 30) / (2 * 3.0) ** 2
+
+
+def test_patch_rows_sum_r_and_area_and_drop_stray_rays():
+    part = thin_plate()
+    patches = patches_of(part, 3.0)
+    rng = np.random.default_rng(0)
+    r = rng.integers(0, 6, (part.n_faces, 7)) * (rng.random((part.n_faces, 7)) < 0.3)
+    summed = patches.sum_rows(sp.csc_array(r)).toarray()
+    for p in range(0, patches.count, 7):
+        assert (summed[p] == r[patches.of_face == p].sum(axis=0)).all()
+    clean = stray_free(sp.csr_array(summed)).toarray()
+    assert (clean == np.where(summed >= STRAY_RAYS, summed, 0)).all()
+    model = cover_model(sp.csc_array(r), part.areas, part.counted, 0.5, "density", patches)
+    areas = model.row_areas(part.areas)
+    assert areas.sum() == pytest.approx(part.areas[model.faces].sum())
+    delta = np.sqrt(clean / patches.areas[:, None])  # the patch density, written out
+    rows = np.flatnonzero(clean.any(axis=1))
+    dense = delta[rows].sum(axis=1) >= 1 / 0.5
+    s = np.where(dense[:, None], np.minimum(1, delta[rows] * 0.5), clean[rows] > 0)
+    assert np.allclose(model.matrix.toarray(), s)
+    assert set(model.uncoverable) == set(np.flatnonzero(~clean.any(axis=1)[patches.of_face]))
+
+
+def test_the_paper_profile_is_spec_2_and_the_default_fills_its_own():
+    paper = PlanRequest(profile="paper")
+    spec = paper.candidates
+    assert isinstance(spec, CandidateGenerator)
+    assert (spec.tilt_deg, spec.retry_tilt_deg, spec.adaptive) == (0, 0, False)
+    assert spec.standoff_mm == PAPER.working_distance and paper.target.rows == "faces"
+    default = PlanRequest()
+    spec = default.candidates
+    assert isinstance(spec, CandidateGenerator)
+    assert spec.tilt_deg == 30 and spec.retry_tilt_deg == 60 and spec.adaptive
+    assert spec.standoff_mm == pytest.approx(standoff_for(PAPER, 0.18))
+    assert default.target.rows == "patches"
+    mixed = PlanRequest(profile="paper", candidates={"tilt_deg": 20}, target={"rows": "patches"})
+    assert mixed.candidates.tilt_deg == 20 and mixed.target.rows == "patches"  # type: ignore[union-attr]
+    with pytest.raises(ValueError, match="depth of field"):
+        PlanRequest(candidates={"standoff_mm": 900})
+
+
+def test_paper_candidates_stand_at_the_working_distance_along_the_normal():
+    from vpp_core.plan.pipeline import candidates_for
+    from vpp_core.trace.raytrace import make_backend
+
+    part = load_mesh(sample_stl(), "stl")
+    request = PlanRequest(profile="paper", candidates={"count": 60})
+    backend = make_backend(part)
+    views, _ = candidates_for(part, request, backend)
+    for c, g in zip(views.positions, views.gazes, strict=True):
+        prim, t = backend.first_hits(c, g[None, :].astype(np.float32), 1e4)
+        assert prim[0] >= 0 and t[0] == pytest.approx(PAPER.working_distance, rel=0.05)
+        normal = part.normals[prim[0]]
+        assert abs(normal @ g) > np.cos(np.radians(60))  # looking back along a smoothed normal
+
+
+def test_default_candidates_reach_what_the_view_sphere_reaches():
+    from vpp_core.plan.metrics import evaluate
+    from vpp_core.plan.pipeline import candidates_for
+    from vpp_core.trace.raytrace import make_backend, trace_counts
+
+    part = load_mesh(sample_stl(), "stl")
+    backend = make_backend(part)
+    request = PlanRequest(sensor=SMALL, target={"resolution_mm": 1.2}, candidates={"count": 150})
+    views, info = candidates_for(part, request, backend)
+    sphere = view_sphere(part, SMALL, 1000)
+    reach = []
+    for v in (views, sphere):
+        counts = trace_counts(part, SMALL, v, backend=backend).counts
+        every = np.arange(len(v))
+        reach.append(evaluate(counts, part.areas, part.counted, every, 1.2).coverage.max_area)
+    assert reach[0] >= reach[1] - 0.005, reach
+    assert info.dropped == 0  # retries instead of drops
+
+
+def test_view_sphere_directions_are_even_and_look_at_the_part():
+    d = fibonacci_directions(500)
+    assert np.allclose(np.linalg.norm(d, axis=1), 1)
+    assert np.abs(d.mean(axis=0)).max() < 0.01
+    part = load_mesh(sample_stl(), "stl")
+    views = view_sphere(part, PAPER, 100)
+    centre = part.bounds.mean(axis=0)
+    to_centre = centre - views.positions
+    to_centre /= np.linalg.norm(to_centre, axis=1, keepdims=True)
+    assert np.allclose(np.einsum("ij,ij->i", to_centre, views.gazes), 1)
+
+
+def test_adaptive_rounds_add_traced_candidates_and_are_reported():
+    from vpp_core.plan.pipeline import plan
+
+    part = load_mesh(sample_stl(), "stl")
+    request = PlanRequest(
+        sensor=SMALL,
+        target=Target(resolution_mm=1.2),
+        candidates=CandidateGenerator(count=30, seed=2),
+        solver=SolverSettings(time_limit_s=2),
+    )
+    doc = plan(part, request)
+    info = doc.candidate_info
+    assert doc.adaptive and doc.adaptive[0].candidates == info.generated
+    assert len(doc.candidates) == info.generated + info.added
+    assert info.added == sum(r.added for r in doc.adaptive)
+    for before, after in zip(doc.adaptive, doc.adaptive[1:], strict=False):
+        assert after.candidates == before.candidates + before.added
+    fixed = CandidateGenerator(count=30, seed=2, adaptive=False)
+    off = plan(part, PlanRequest(**{**request.model_dump(), "candidates": fixed.model_dump()}))
+    assert not off.adaptive and len(off.candidates) == info.generated

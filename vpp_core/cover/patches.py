@@ -1,0 +1,149 @@
+"""Surface patches: the rows of the default cover, pieces of surface of about one patch area.
+
+A face counts as sampled when pixel rays land on it; on a mesh whose faces are smaller than a
+pixel's footprint that is luck, and on a CAD export the faces are slivers of any size. The
+default cover therefore asks for the target density on *patches*: counted faces grouped by
+where they are and which way they face, each patch about `edge_mm` across, so that a row holds
+PATCH_SAMPLES pixel samples at the target density whatever the tessellation (R of a patch is
+the sum of its faces' R, its area the sum of their areas: δ_pj = sqrt(R_pj / A_p)).
+
+Grouping: each face's normal is smoothed over the faces within half an edge that face the
+same side (area-weighted, SMOOTH_PASSES times), so that a scan's noisy normals do not
+scatter a smooth surface; the faces of each normal bin (the nearest of the 26 directions of
+a cube's faces, edges and corners, so opposite sides of a thin wall never share a patch) get
+seeds at least SEED_SPACING · `edge_mm` apart (largest faces first), and each face joins its
+bin's nearest seed. A face larger than a patch is a patch of its own.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.spatial import cKDTree
+
+from vpp_core.jit import kernel
+
+SMOOTH_NEIGHBOURS = 16
+"""Nearest faces a face's normal is smoothed over (within half a patch edge)."""
+SMOOTH_PASSES = 3
+"""Smoothing passes: a scan's noisy normals (turbineblade.ply) need about three to group its
+smooth surface into whole patches (1 pass: 17 views, 3 passes: 11; docs/quality.md)."""
+SEED_SPACING = 0.7
+"""Least seed distance / edge: greedy seeds at least s apart leave Voronoi patches of about
+2.1 s² (measured on a plate), so 0.7 edge gives patches of about edge² on average."""
+PATCH_SAMPLES = 25
+"""Pixel samples a patch holds at the target density: edge = sqrt(PATCH_SAMPLES) · r̄."""
+MAX_PATCHES = 100_000
+"""Patches at most: on a large part the edge grows so that rows stay within this."""
+
+_AXES = np.array([(x, y, z) for x in (-1, 0, 1) for y in (-1, 0, 1) for z in (-1, 0, 1)])
+DIRECTIONS = _AXES[np.abs(_AXES).sum(axis=1) > 0] / np.linalg.norm(
+    _AXES[np.abs(_AXES).sum(axis=1) > 0], axis=1, keepdims=True
+)
+"""(26, 3) unit normal bins."""
+
+
+@dataclass(frozen=True, eq=False)
+class Patches:
+    """A grouping of a part's counted faces into patches."""
+
+    of_face: np.ndarray  # (M,) int64 patch of each face, -1 for faces not counted
+    areas: np.ndarray  # (P,) float64 patch areas, mm²
+    edge_mm: float  # the patch size asked for, mm
+
+    @property
+    def count(self) -> int:
+        """Number of patches P."""
+        return len(self.areas)
+
+    def indicator(self) -> sp.csr_array:
+        """(P, M) 0/1 matrix: row p holds the faces of patch p."""
+        faces = np.flatnonzero(self.of_face >= 0)
+        data = np.ones(len(faces))
+        shape = (self.count, len(self.of_face))
+        return sp.csr_array((data, (self.of_face[faces], faces)), shape=shape)
+
+    def sum_rows(self, counts: sp.sparray) -> sp.csr_array:
+        """(P, N) int64 ray counts per patch: the sums of its faces' rows of R (M, N)."""
+        total = self.indicator() @ sp.csr_array(counts, dtype=np.int64)
+        return sp.csr_array(total, dtype=np.int64)
+
+    def faces_of(self, patch_ids: np.ndarray) -> np.ndarray:
+        """Sorted face ids of the given patches."""
+        mask = np.zeros(self.count + 1, dtype=bool)
+        mask[np.asarray(patch_ids, dtype=np.int64)] = True
+        return np.flatnonzero(mask[self.of_face])
+
+
+def patch_edge(resolution_mm: float, counted_area_mm2: float) -> float:
+    """Patch edge (mm): sqrt(PATCH_SAMPLES) · r̄, larger where MAX_PATCHES would be exceeded."""
+    return float(
+        max(np.sqrt(PATCH_SAMPLES) * resolution_mm, np.sqrt(counted_area_mm2 / MAX_PATCHES))
+    )
+
+
+def make_patches(
+    centres: np.ndarray, normals: np.ndarray, areas: np.ndarray, counted: np.ndarray, edge_mm: float
+) -> Patches:
+    """Group counted faces ((M, 3) centres and unit normals, (M,) areas mm²) into patches."""
+    of_face = np.full(len(centres), -1, dtype=np.int64)
+    smooth = np.zeros_like(normals)
+    smooth[counted] = normals[counted]
+    for _ in range(SMOOTH_PASSES):
+        smooth[counted] = smoothed(centres[counted], smooth[counted], areas[counted], edge_mm / 2)
+    bins = np.argmax(smooth @ DIRECTIONS.T, axis=1)
+    next_id = 0
+    for b in np.unique(bins[counted]):
+        faces = np.flatnonzero(counted & (bins == b))
+        seeds = _seeds(centres[faces], areas[faces], SEED_SPACING * edge_mm)
+        _, nearest = cKDTree(centres[faces][seeds]).query(centres[faces])
+        of_face[faces] = next_id + np.asarray(nearest, dtype=np.int64)
+        next_id += len(seeds)
+    used, of_face[counted] = np.unique(of_face[counted], return_inverse=True)
+    patch_areas = np.bincount(of_face[counted], weights=areas[counted], minlength=len(used))
+    return Patches(of_face, patch_areas, edge_mm)
+
+
+def smoothed(
+    centres: np.ndarray, normals: np.ndarray, areas: np.ndarray, radius: float
+) -> np.ndarray:
+    """(M, 3) normals averaged (area-weighted) over the SMOOTH_NEIGHBOURS nearest faces within
+    `radius` mm whose normal points to the same side; a face's own normal where they cancel."""
+    k = min(SMOOTH_NEIGHBOURS, len(centres))
+    dist, idx = cKDTree(centres).query(centres, k=k, distance_upper_bound=radius)
+    found = np.isfinite(dist)
+    idx = np.where(found, idx, np.arange(len(centres))[:, None])
+    near = normals[idx]
+    keep = found & (np.einsum("mkj,mj->mk", near, normals) > 0)
+    total = np.einsum("mk,mkj->mj", keep * areas[idx], near) + normals * 1e-12
+    norm = np.linalg.norm(total, axis=1, keepdims=True)
+    return np.where(norm > 1e-9 * areas.max(), total / np.maximum(norm, 1e-300), normals)
+
+
+def _seeds(centres: np.ndarray, areas: np.ndarray, edge_mm: float) -> np.ndarray:
+    """Indices of face centres at least `edge_mm` apart, largest faces first: the largest face
+    of each cube of side edge/2, thinned greedily."""
+    cells = np.floor((centres - centres.min(axis=0)) / (edge_mm / 2)).astype(np.int64)
+    order = np.argsort(-areas, kind="stable")
+    _, first = np.unique(cells[order], axis=0, return_index=True)
+    picks = order[np.sort(first)]  # one per cube, the larger faces' cubes first
+    pairs = cKDTree(centres[picks]).query_pairs(edge_mm, output_type="ndarray").reshape(-1, 2)
+    lo, hi = pairs.min(axis=1), pairs.max(axis=1)
+    sort = np.argsort(hi, kind="stable")
+    return np.asarray(picks[_greedy_alive(len(picks), lo[sort], hi[sort])])
+
+
+@kernel
+def _greedy_alive(n: int, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """(n,) bool: point i survives unless an earlier survivor lo[k] is its neighbour (pairs
+    (lo[k] < hi[k]) sorted by hi)."""
+    alive = np.ones(n, dtype=np.bool_)
+    k = 0
+    for i in range(n):
+        while k < len(hi) and hi[k] == i:
+            if alive[lo[k]]:
+                alive[i] = False
+            k += 1
+    return alive

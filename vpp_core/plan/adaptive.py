@@ -1,0 +1,174 @@
+"""Adaptive candidates (column generation): new candidates aimed at what drives the count.
+
+After a quick cover of the current pool (greedy with redundancy removal: deterministic, so a
+plan is the same wherever it is computed), the rows that force views — rows private to one
+selected view, and rows that at most FEW_CANDIDATES candidates sample — become targets: each
+gets cameras at the stand-off looking back at its centre, along its normal and tilted up to
+AIM_TILT_DEG, placed and checked as the generator places its own (vpp_core.candidates). Only
+the new candidates are traced (R grows by columns); the round repeats while it adds
+candidates and the quick count improves, at most ROUNDS times. The final cover is solved on
+the whole pool by the pipeline, and the document lists every round.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from vpp_core.camera.pose import Viewpoints, make_viewpoints
+from vpp_core.candidates.generator import place, tilt
+from vpp_core.cover.density import CoverModel
+from vpp_core.cover.partial import PartialCover
+from vpp_core.mesh.part import Part
+from vpp_core.plan.diagnostics import private_rows
+from vpp_core.plan.document import AdaptiveRound, CandidateGenerator, PlanRequest
+from vpp_core.trace.rays import RayBackend
+from vpp_core.trace.raytrace import Trace, join_traces, trace_counts
+
+ROUNDS = 3
+"""Rounds of new candidates at most."""
+FEW_CANDIDATES = 2
+"""A row that at most this many candidates sample is a target."""
+MAX_TARGETS = 80
+"""Target rows per round at most (those with the fewest candidates first)."""
+AIM_TILT_DEG = 45.0
+"""New gazes lie within this angle of the target's normal."""
+AIM_TRIES = 4
+"""Directions tried per target (the normal first); each target gets up to AIM_VIEWS views."""
+AIM_VIEWS = 2
+"""Cameras kept per target."""
+QUICK_SHARE = 0.1
+"""Share of the solver's time limit one quick cover may take."""
+
+Solve = Callable[[CoverModel, float], PartialCover]
+"""solve(model, time_limit_s) -> cover: how the pipeline covers a model."""
+Model = Callable[[Trace], CoverModel]
+"""model(trace) -> the cover's rows for the request."""
+
+
+@dataclass(frozen=True)
+class Pool:
+    """Candidates and their R, grown round by round."""
+
+    views: Viewpoints
+    trace: Trace
+    rounds: list[AdaptiveRound]
+
+
+def adapt(
+    part: Part,
+    request: PlanRequest,
+    views: Viewpoints,
+    trace: Trace,
+    backend: RayBackend,
+    model_of: Model,
+    solve: Solve,
+    *,
+    threads: int | None = None,
+) -> Pool:
+    """Grow the candidate pool where quick covers need it (see module docstring)."""
+    spec = request.candidates
+    if not isinstance(spec, CandidateGenerator) or not spec.adaptive:
+        return Pool(views, trace, [])
+    rounds: list[AdaptiveRound] = []
+    quick = QUICK_SHARE * request.solver.time_limit_s
+    for k in range(ROUNDS):
+        start = time.perf_counter()
+        model = model_of(trace)
+        cover = solve(model, quick)
+        count = len(cover.result.selected)
+        if rounds and count >= rounds[-1].views:
+            rounds.append(_round(k, 0, len(views), cover, start))
+            break
+        new = aimed_views(part, request, views, model, cover, backend, seed=spec.seed + k)
+        rounds.append(_round(k, len(new), len(views), cover, start))
+        if not len(new):
+            break
+        added = trace_counts(part, request.sensor, new, backend=backend, threads=threads)
+        trace = join_traces([trace, added], trace.seconds + added.seconds)
+        views = _concat(views, new)
+    return Pool(views, trace, rounds)
+
+
+def _round(k: int, added: int, pool: int, cover: PartialCover, start: float) -> AdaptiveRound:
+    """The document's record of one round."""
+    r = cover.result
+    return AdaptiveRound(
+        round=k,
+        candidates=pool,
+        views=len(r.selected),
+        bound=r.bound,
+        status=r.status,
+        added=added,
+        seconds=round(time.perf_counter() - start, 3),
+    )
+
+
+def aimed_views(
+    part: Part,
+    request: PlanRequest,
+    views: Viewpoints,
+    model: CoverModel,
+    cover: PartialCover,
+    backend: RayBackend,
+    seed: int,
+) -> Viewpoints:
+    """New viewpoints aimed at the target rows of `cover` (may be empty)."""
+    rows = target_rows(model, cover.result.selected)
+    if not len(rows):
+        return make_viewpoints(np.zeros((0, 3)), np.zeros((0, 3)))
+    centres, normals = row_frames(part, model, rows)
+    spec = request.candidates
+    assert isinstance(spec, CandidateGenerator)
+    rng = np.random.default_rng([seed, 3])
+    directions = [normals, *(tilt(normals, AIM_TILT_DEG, rng) for _ in range(AIM_TRIES - 1))]
+    standoff = spec.standoff_mm or request.sensor.working_distance
+    positions, gazes = [], []
+    for _ in range(AIM_VIEWS):
+        pos, gaze = place(part, backend, centres, directions, standoff, spec.clearance_mm)
+        ok = np.isfinite(pos).all(axis=1)
+        positions.append(pos[ok])
+        gazes.append(gaze[ok])
+        directions = directions[1:] + directions[:1]  # the next view starts one direction on
+    return make_viewpoints(np.vstack(positions), np.vstack(gazes))
+
+
+def target_rows(model: CoverModel, selected: np.ndarray) -> np.ndarray:
+    """Rows private to a selected view or sampled by few candidates, fewest candidates first."""
+    per_row = np.diff(model.matrix.indptr)
+    private = np.zeros(len(per_row), dtype=bool)
+    if len(selected):
+        private[private_rows(model.matrix, selected).indices] = True
+    wanted = np.flatnonzero(private | (per_row <= FEW_CANDIDATES))
+    order = np.argsort(per_row[wanted], kind="stable")
+    return wanted[order][:MAX_TARGETS]
+
+
+def row_frames(part: Part, model: CoverModel, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(k, 3) area-weighted centres (mm) and unit normals of the given rows' faces."""
+    n_rows = model.matrix.shape[0]
+    w = part.areas[model.faces] + 1e-12
+    centres = part.vertices[part.faces[model.faces]].mean(axis=1)
+    out_c = np.zeros((n_rows, 3))
+    out_n = np.zeros((n_rows, 3))
+    for axis in range(3):
+        out_c[:, axis] = np.bincount(model.face_row, w * centres[:, axis], minlength=n_rows)
+        normal = part.normals[model.faces, axis]
+        out_n[:, axis] = np.bincount(model.face_row, w * normal, minlength=n_rows)
+    total = np.bincount(model.face_row, w, minlength=n_rows)
+    c = out_c[rows] / total[rows, None]
+    n = out_n[rows]
+    norm = np.linalg.norm(n, axis=1, keepdims=True)
+    return c, np.where(norm > 1e-9, n / np.maximum(norm, 1e-300), [[0.0, 0.0, 1.0]])
+
+
+def _concat(a: Viewpoints, b: Viewpoints) -> Viewpoints:
+    """The viewpoints of `a` followed by those of `b`."""
+    return make_viewpoints(
+        np.vstack([a.positions, b.positions]),
+        np.vstack([a.gazes, b.gazes]),
+        np.vstack([a.ups, b.ups]),
+    )

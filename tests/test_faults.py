@@ -42,12 +42,17 @@ from worker.store import FileStore
 pytestmark = pytest.mark.slow
 
 SLOW = {
+    "profile": "paper",  # faults, not plan quality: the quick, deterministic strict face cover
     "sensor": {"width_px": 3840, "height_px": 2400},
     "candidates": {"count": 60, "seed": 7},
     "backend": "embree",
 }
 """3 chunks of 20 views at 9 Mpx with Embree: about 1 s of tracing each on one thread."""
-SMALL = {"sensor": {"width_px": 320, "height_px": 200}, "candidates": {"count": 30, "seed": 1}}
+SMALL = {
+    "profile": "paper",
+    "sensor": {"width_px": 320, "height_px": 200},
+    "candidates": {"count": 30, "seed": 1},
+}
 """A plan of about a second."""
 DEAD_WORKER_S = int(os.environ.get("VPP_FAULTS_DEAD_WORKER_S", "3"))
 """VPP_DEAD_WORKER_S of these tests (set VPP_FAULTS_DEAD_WORKER_S=30 to measure the default)."""

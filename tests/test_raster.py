@@ -13,7 +13,7 @@ from vpp_core.camera.pose import Viewpoints, make_viewpoints
 from vpp_core.camera.sensor import Sensor
 from vpp_core.candidates.generator import GeneratorSettings, generate
 from vpp_core.mesh.part import Part, load_mesh, part_from_arrays
-from vpp_core.plan.document import CandidateGenerator, PlanRequest
+from vpp_core.plan.document import PlanRequest
 from vpp_core.plan.pipeline import plan
 from vpp_core.trace.embree import EmbreeBackend, block_directions
 from vpp_core.trace.raster import RasterBackend, pixel_scale, view_first_hits
@@ -232,7 +232,7 @@ def test_plans_from_every_backend_agree() -> None:
     path = shared_dir(MESHES) / "hirth_sample_small.stl"
     part = load_mesh(path.read_bytes(), "stl")
     docs = {
-        name: plan(part, PlanRequest(candidates=CandidateGenerator(count=80), backend=name))
+        name: plan(part, PlanRequest(profile="paper", candidates={"count": 80}, backend=name))
         for name in ("raster", "packets", "embree")
     }
     assert [d.rays.backend for d in docs.values()] == ["raster", "packets", "embree"]

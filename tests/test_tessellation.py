@@ -66,7 +66,8 @@ def two_tessellations() -> tuple[Part, Part]:
 def test_default_counts_agree_across_tessellations(two_tessellations, formulation):
     """Issue 33 item 4: nothing but the formulation (and a shorter solver limit than the
     default 60 s: both are proven optimal or within one view by then, measured), and the two
-    tessellations' counts agree within 10 % or one view, each covering its sampled area."""
+    tessellations' counts agree within 10 % or one view, each sampling at least 0.999 of the
+    patch area its candidates sample (the default partial cover)."""
     from vpp_core.plan.pipeline import plan
 
     request = PlanRequest(
@@ -78,7 +79,8 @@ def test_default_counts_agree_across_tessellations(two_tessellations, formulatio
     for doc in docs:
         rows = doc.cover_rows
         assert rows is not None and rows.kind == "patches"
-        assert rows.sampled_area == pytest.approx(rows.max_sampled_area)
+        assert rows.sampled_area is not None and rows.max_sampled_area is not None
+        assert rows.sampled_area >= 0.999 * rows.max_sampled_area  # the default partial cover
 
 
 @pytest.mark.slow

@@ -23,6 +23,7 @@ from redis import Redis  # noqa: E402
 from redis.exceptions import ConnectionError, TimeoutError  # noqa: E402
 from rq import Queue, Worker  # noqa: E402
 from rq.job import Job  # noqa: E402
+from rq.scheduler import RQScheduler  # noqa: E402
 
 import worker.jobs  # noqa: E402,F401
 from worker import logs, webhooks  # noqa: E402
@@ -48,6 +49,16 @@ class VppWorker(Worker):
     def request_stop(self, signum: int, frame: FrameType | None) -> None:
         self.stopping = True
         super().request_stop(signum, frame)  # type: ignore[no-untyped-call]
+
+    def run_maintenance_tasks(self) -> None:
+        """RQ's sweep, then the due retries of webhook deliveries back onto their queue, here in
+        the worker instead of RQ's forked scheduler: a SIGKILLed worker's scheduler process
+        outlived it, holding the queues' scheduler locks, and a plan whose worker was killed no
+        longer resumed from its stored chunks (tests/test_faults.py)."""
+        super().run_maintenance_tasks()  # type: ignore[no-untyped-call]
+        due = RQScheduler([q.name for q in self.queues], connection=self.connection)
+        due.prepare_registries()
+        due.enqueue_scheduled_jobs()  # type: ignore[no-untyped-call]
 
     def perform_job(self, job: Job, *args: Any) -> bool:
         """RQ's perform_job (in the work horse) with the job id on every line logged meanwhile."""
@@ -98,7 +109,7 @@ def main(argv: list[str] | None = None) -> None:
         name = args.name and (f"{args.name}.{attempt}" if attempt else args.name)
         worker = make_worker(conn, settings, name)
         try:
-            worker.work(burst=args.burst, with_scheduler=True)  # webhook retries
+            worker.work(burst=args.burst, with_scheduler=False)
             if args.burst or worker.stopping:
                 return
             log.warning("worker %s stopped on an error; starting again", worker.name)

@@ -6,6 +6,7 @@ import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 import scipy.sparse as sp
@@ -336,9 +337,15 @@ def cover_patches(part: Part, target: Target) -> Patches | None:
     """The patches the cover's rows are made of, or None for one row per face (target.rows)."""
     if target.rows == "faces":
         return None
-    edge = patch_edge(target.resolution_mm, float(part.areas[part.counted].sum()))
+    return _patches(part, patch_edge(target.resolution_mm, float(part.areas[part.counted].sum())))
+
+
+@lru_cache(maxsize=2)
+def _patches(part: Part, edge_mm: float) -> Patches:
+    """The part's patches of `edge_mm`, grouped once: the adaptive rounds, the final cover and
+    each row of a study ask for the same ones (3.7 s on turbineblade's 199 k faces)."""
     centres = part.vertices[part.faces].mean(axis=1)
-    return make_patches(centres, part.normals, part.areas, part.counted, edge)
+    return make_patches(centres, part.normals, part.areas, part.counted, edge_mm)
 
 
 def _counter(progress: Progress | None, stage: str, total: int) -> Callable[[int], None]:

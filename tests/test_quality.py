@@ -164,3 +164,38 @@ def test_adaptive_rounds_add_traced_candidates_and_are_reported():
     fixed = CandidateGenerator(count=30, seed=2, adaptive=False)
     off = plan(part, PlanRequest(**{**request.model_dump(), "candidates": fixed.model_dump()}))
     assert not off.adaptive and len(off.candidates) == info.generated
+
+
+def test_the_time_limit_is_the_whole_plans_budget(monkeypatch):
+    """The final cover gets what candidates, trace and adaptive rounds left of the limit (less
+    the share kept for the stages after it, at least the floor); no round starts past half."""
+    from vpp_core.plan import pipeline
+
+    part = load_mesh(sample_stl(), "stl")
+    limits: list[float] = []
+    real = pipeline.solve
+
+    def spy(model, areas, target, settings, *args, **kwargs):
+        limits.append(settings.time_limit_s)
+        return real(model, areas, target, settings, *args, **kwargs)
+
+    monkeypatch.setattr(pipeline, "solve", spy)
+    budget = 20.0
+    request = PlanRequest(
+        sensor=SMALL,
+        target=Target(resolution_mm=1.2),
+        candidates=CandidateGenerator(count=30, seed=2, adaptive=False),
+        solver=SolverSettings(time_limit_s=budget),
+    )
+    doc = pipeline.plan(part, request, load_s=7.0)
+    t = doc.timings_s
+    spent = t.load + t.candidates + t.trace + t.adaptive
+    assert spent >= 7.0
+    want = max(pipeline.FINAL_SHARE * budget, budget * (1 - pipeline.AFTER_SHARE) - spent)
+    assert limits == [pytest.approx(want, abs=1e-3)]
+    late = pipeline.plan(part, request, load_s=budget)  # nothing left: the floor
+    assert late.solver.status == "optimal"
+    assert limits[-1] == pytest.approx(pipeline.FINAL_SHARE * budget)
+    grown = PlanRequest(**{**request.model_dump(), "candidates": {"count": 30, "seed": 2}})
+    assert pipeline.plan(part, grown).adaptive  # rounds when there is time
+    assert not pipeline.plan(part, grown, load_s=budget * pipeline.ADAPT_SHARE).adaptive

@@ -31,7 +31,7 @@ from vpp_core.camera.sensor import Sensor
 from vpp_core.errors import VppError
 from vpp_core.mesh.part import Part
 from vpp_core.plan.document import PlanRequest, Timings
-from vpp_core.plan.pipeline import candidates_for, check_limits, finish, grow
+from vpp_core.plan.pipeline import candidates_for, check_limits, finish, grow, spent_s
 from vpp_core.report.plots import plan_plots
 from vpp_core.report.scene import plan_scene
 from vpp_core.trace.rays import RayBackend
@@ -123,7 +123,7 @@ def _plan(ctx: Context, plan: str) -> dict[str, Any]:
     progress("adaptive", 0, 1)
     start = time.perf_counter()
     views, info, trace, rounds = grow(
-        part, request, views, info, trace, threads=ctx.settings.threads
+        part, request, views, info, trace, threads=ctx.settings.threads, spent_s=spent_s(timings)
     )
     timings.adaptive = round(time.perf_counter() - start, 4)
     doc = finish(

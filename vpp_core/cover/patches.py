@@ -3,9 +3,15 @@
 A face counts as sampled when pixel rays land on it; on a mesh whose faces are smaller than a
 pixel's footprint that is luck, and on a CAD export the faces are slivers of any size. The
 default cover therefore asks for the target density on *patches*: counted faces grouped by
-where they are and which way they face, each patch about `edge_mm` across, so that a row holds
-PATCH_SAMPLES pixel samples at the target density whatever the tessellation (R of a patch is
-the sum of its faces' R, its area the sum of their areas: δ_pj = sqrt(R_pj / A_p)).
+where they are and which way they face, each patch about `edge_mm` across (R of a patch is the
+sum of its faces' R, its area the sum of their areas: δ_pj = sqrt(R_pj / A_p)).
+
+The edge is PATCH_TARGETS · r̄ (5.8 mm at 0.18 mm): at the default stand-off (a pixel covers
+r̄ / 1.2) a patch is about 38 pixels across, 1/50 of the paper camera's image, so one view's
+density varies over it by a few per cent except where a shadow edge crosses it, and the rows
+stay few enough for the cover to be solved well (docs/quality.md measures 5 r̄ against it).
+Small parts get at least MIN_PATCHES patches (not below MIN_PATCH_TARGETS · r̄ across), large
+ones at most MAX_PATCHES.
 
 Grouping: each face's normal is smoothed over the faces within half an edge that face the
 same side (area-weighted, SMOOTH_PASSES times), so that a scan's noisy normals do not
@@ -33,8 +39,12 @@ smooth surface into whole patches (1 pass: 17 views, 3 passes: 11; docs/quality.
 SEED_SPACING = 0.7
 """Least seed distance / edge: greedy seeds at least s apart leave Voronoi patches of about
 2.1 s² (measured on a plate), so 0.7 edge gives patches of about edge² on average."""
-PATCH_SAMPLES = 25
-"""Pixel samples a patch holds at the target density: edge = sqrt(PATCH_SAMPLES) · r̄."""
+PATCH_TARGETS = 32.0
+"""Patch edge in target lengths r̄ (about 1 000 target samples per patch)."""
+MIN_PATCH_TARGETS = 5.0
+"""Patch edge in target lengths at least (about 25 target samples), on small parts too."""
+MIN_PATCHES = 1_000
+"""Patches at least, where the edge may shrink to MIN_PATCH_TARGETS · r̄ to give them."""
 MAX_PATCHES = 100_000
 """Patches at most: on a large part the edge grows so that rows stay within this."""
 
@@ -78,10 +88,12 @@ class Patches:
 
 
 def patch_edge(resolution_mm: float, counted_area_mm2: float) -> float:
-    """Patch edge (mm): sqrt(PATCH_SAMPLES) · r̄, larger where MAX_PATCHES would be exceeded."""
-    return float(
-        max(np.sqrt(PATCH_SAMPLES) * resolution_mm, np.sqrt(counted_area_mm2 / MAX_PATCHES))
-    )
+    """Patch edge (mm) for target r̄ (mm) on a counted area (mm²): PATCH_TARGETS · r̄, smaller
+    where that gives fewer than MIN_PATCHES (never below MIN_PATCH_TARGETS · r̄), larger where
+    it gives more than MAX_PATCHES."""
+    edge = min(PATCH_TARGETS * resolution_mm, np.sqrt(counted_area_mm2 / MIN_PATCHES))
+    edge = max(edge, MIN_PATCH_TARGETS * resolution_mm)
+    return float(max(edge, np.sqrt(counted_area_mm2 / MAX_PATCHES)))
 
 
 def make_patches(

@@ -68,8 +68,10 @@ def adapt(
     solve: Solve,
     *,
     threads: int | None = None,
+    deadline: float = float("inf"),
 ) -> Pool:
-    """Grow the candidate pool where quick covers need it (see module docstring)."""
+    """Grow the candidate pool where quick covers need it (see module docstring); no round
+    starts after `deadline` (time.perf_counter() seconds)."""
     spec = request.candidates
     if not isinstance(spec, CandidateGenerator) or not spec.adaptive:
         return Pool(views, trace, [])
@@ -77,6 +79,8 @@ def adapt(
     quick = QUICK_SHARE * request.solver.time_limit_s
     for k in range(ROUNDS):
         start = time.perf_counter()
+        if start >= deadline:
+            break
         model = model_of(trace)
         cover = solve(model, quick)
         count = len(cover.result.selected)

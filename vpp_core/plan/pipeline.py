@@ -47,8 +47,12 @@ from vpp_core.plan.tour import path_length
 from vpp_core.trace.rays import RayBackend
 from vpp_core.trace.raytrace import Trace, make_backend, trace_counts
 
-FINAL_SHARE = 0.5
-"""The final cover gets at least this share of the solver's time limit."""
+FINAL_SHARE = 0.15
+"""The final cover gets at least this share of the plan's time limit."""
+AFTER_SHARE = 0.08
+"""Share of the time limit kept for what follows the final cover (tour, metrics, diagnostics)."""
+ADAPT_SHARE = 0.5
+"""No adaptive round starts once the plan has spent this share of its time limit."""
 
 Progress = Callable[[str, int, int], None]
 """progress(stage, done, total): called as stages start and as viewpoints are traced."""
@@ -128,12 +132,18 @@ def check_request(request: PlanRequest, limits: Limits) -> None:
         explicit_viewpoints(spec.viewpoints)  # ViewpointError now
 
 
-def _left(settings: SolverSettings, rounds: Sequence[AdaptiveRound]) -> SolverSettings:
-    """The solver settings with the adaptive rounds' time taken off the limit (the limit is the
-    budget of every cover of the plan), at least FINAL_SHARE of it."""
+def spent_s(timings: Timings) -> float:
+    """Wall seconds the plan spent before its final cover (load, candidates, trace, adaptive)."""
+    return timings.load + timings.candidates + timings.trace + timings.adaptive
+
+
+def _left(settings: SolverSettings, timings: Timings) -> SolverSettings:
+    """The solver settings for the final cover: the plan's time limit (the budget of the whole
+    plan after loading) less what the stages before it spent and AFTER_SHARE for the stages
+    after it; at least FINAL_SHARE of the limit."""
     limit = settings.time_limit_s
-    spent = sum(r.seconds for r in rounds)
-    return settings.model_copy(update={"time_limit_s": max(FINAL_SHARE * limit, limit - spent)})
+    left = limit * (1.0 - AFTER_SHARE) - spent_s(timings)
+    return settings.model_copy(update={"time_limit_s": max(FINAL_SHARE * limit, left)})
 
 
 def solve(
@@ -198,7 +208,10 @@ def plan(
             part, request.sensor, views, backend=backend, threads=threads, progress=done
         )
     with clock.stage("adaptive"):
-        views, info, trace, rounds = grow(part, request, views, info, trace, backend, threads)
+        spent = spent_s(clock.timings)
+        views, info, trace, rounds = grow(
+            part, request, views, info, trace, backend, threads, spent_s=spent
+        )
     return finish(
         part,
         request,
@@ -240,12 +253,13 @@ def finish(
             patches,
         )
     with clock.stage("solve"):
-        cover = solve(model, part.areas, request.target, _left(request.solver, rounds), threads)
+        settings = _left(request.solver, clock.timings)
+        cover = solve(model, part.areas, request.target, settings, threads)
         cover, tour = by_objective(
             cover,
             request.objective,
             views.positions,
-            lambda c: solve(model, part.areas, request.target, request.solver, threads, c),
+            lambda c: solve(model, part.areas, request.target, settings, threads, c),
         )
     with clock.stage("metrics"):
         doc = document(part, request, views, info, trace, model, cover, clock.timings, tour)
@@ -277,9 +291,12 @@ def grow(
     trace: Trace,
     backend: RayBackend | None = None,
     threads: int | None = None,
+    *,
+    spent_s: float = 0.0,
 ) -> tuple[Viewpoints, CandidateInfo, Trace, list[AdaptiveRound]]:
     """The candidate pool grown by the adaptive rounds (vpp_core.plan.adaptive), its R and
-    the rounds; unchanged when the request does not ask for them."""
+    the rounds; unchanged when the request does not ask for them. `spent_s`: wall seconds
+    the plan spent before (no round starts past ADAPT_SHARE of the time limit)."""
     patches = cover_patches(part, request.target)
     t = request.target
 
@@ -292,7 +309,11 @@ def grow(
         return solve(model, part.areas, t, settings, threads)
 
     backend = backend or make_backend(part, trace.backend)
-    pool = adapt(part, request, views, trace, backend, model_of, quick, threads=threads)
+    budget = ADAPT_SHARE * request.solver.time_limit_s - spent_s
+    deadline = time.perf_counter() + budget
+    pool = adapt(
+        part, request, views, trace, backend, model_of, quick, threads=threads, deadline=deadline
+    )
     added = len(pool.views) - len(views)
     return pool.views, info.model_copy(update={"added": added}), pool.trace, pool.rounds
 

@@ -1,0 +1,113 @@
+"""Parts like the unseen ones of issue 33, made here (none of them is in ../shared/meshes):
+a crankshaft as CAD exports it and isotropically remeshed, a 36-tooth Hirth coupling coarse
+(planar flanks, one triangle strip each) and finely tessellated. All in mm.
+
+    python bench/synthetic.py OUTDIR      # writes crankshaft_cad.stl, crankshaft_fine.stl,
+                                          # hirth36_coarse.stl, hirth36_fine.stl
+
+The crankshaft needs manifold3d (`pip install manifold3d`, a bench-only dependency); the
+coupling is built from numpy alone. The fine versions are pymeshlab isotropic remeshes of the
+coarse ones (what `vpp plan --remesh` does), so both tessellations are the same geometry.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+
+def crankshaft(segments: int = 64) -> trimesh.Trimesh:
+    """A four-cylinder crankshaft (mm): 5 main journals Ø50, 4 pins Ø44 at 45 mm throw,
+    8 webs 18 mm thick, a Ø90 flange and a Ø30 nose; about 430 mm long, along x."""
+    import manifold3d as m3
+
+    m3.set_circular_segments(segments)
+
+    def cyl(r: float, length: float, x0: float, y: float = 0.0, z: float = 0.0) -> m3.Manifold:
+        c = m3.Manifold.cylinder(length, r, r)
+        return c.rotate([0, 90, 0]).translate([x0, y, z])
+
+    parts = [cyl(15, 40, -40), cyl(45, 15, 390)]
+    pitch = 95.0
+    for i in range(5):
+        parts.append(cyl(25, 30, i * pitch))
+    for i in range(4):
+        x = i * pitch + 30
+        angle = np.pi if i in (1, 2) else 0.0
+        y, z = 45 * np.cos(angle), 45 * np.sin(angle)
+        parts.append(cyl(22, 29, x + 18, y, z))
+        for xw in (x, x + 47):
+            main = m3.CrossSection.circle(40)
+            pin = m3.CrossSection.circle(30).translate([y, z])
+            web = m3.CrossSection.batch_hull([main, pin]).extrude(18)
+            parts.append(web.rotate([0, 90, 0]).translate([xw, 0, 0]))
+    solid = m3.Manifold.batch_boolean(parts, m3.OpType.Add)
+    mesh = solid.to_mesh()
+    return trimesh.Trimesh(np.asarray(mesh.vert_properties)[:, :3], np.asarray(mesh.tri_verts))
+
+
+def hirth(
+    teeth: int = 36, r_in: float = 20.0, r_out: float = 50.0, base: float = 12.0
+) -> trimesh.Trimesh:
+    """A Hirth coupling half (mm): a ring r_in..r_out, `base` thick, with `teeth` radial
+    teeth of 60° included angle on top, ridges and valleys straight lines through the axis
+    (so each flank is a plane). Coarse: each flank and wall piece is one quad (2 triangles)."""
+    n = 2 * teeth
+    theta = np.arange(n) * np.pi / teeth
+    half_pitch = np.pi / teeth
+    slope = 1 / np.tan(np.radians(30))  # flank rise per unit of arc
+    ridge = np.arange(n) % 2 == 0
+
+    def ring(r: float, z_top: bool) -> np.ndarray:
+        h = np.where(ridge, r * half_pitch * slope, 0.0) if z_top else np.zeros(n)
+        z = base + h if z_top else np.zeros(n)
+        return np.column_stack([r * np.cos(theta), r * np.sin(theta), z])
+
+    verts = np.vstack([ring(r_in, True), ring(r_out, True), ring(r_in, False), ring(r_out, False)])
+    ti, to, bi, bo = 0, n, 2 * n, 3 * n
+    faces = []
+    for k in range(n):
+        j = (k + 1) % n
+        faces += [[ti + k, to + k, to + j], [ti + k, to + j, ti + j]]  # flank
+        faces += [[to + k, bo + k, bo + j], [to + k, bo + j, to + j]]  # outer wall
+        faces += [[ti + k, ti + j, bi + j], [ti + k, bi + j, bi + k]]  # bore
+        faces += [[bi + k, bi + j, bo + j], [bi + k, bo + j, bo + k]]  # bottom
+    mesh = trimesh.Trimesh(verts, np.array(faces))
+    mesh.fix_normals()
+    return mesh
+
+
+def fine(mesh: trimesh.Trimesh, edge_mm: float) -> trimesh.Trimesh:
+    """The same geometry isotropically remeshed to edges of about `edge_mm` (pymeshlab)."""
+    from vpp_core.mesh.part import part_from_arrays
+    from vpp_core.mesh.remesh import isotropic_remesh
+
+    part = isotropic_remesh(part_from_arrays(mesh.vertices, mesh.faces), edge_mm)
+    return trimesh.Trimesh(part.vertices, part.faces)
+
+
+def main() -> None:
+    """Write the four parts into the folder given."""
+    out = Path(sys.argv[1])
+    out.mkdir(parents=True, exist_ok=True)
+    crank = crankshaft()
+    coupling = hirth()
+    parts = {
+        "crankshaft_cad": crank,
+        "crankshaft_fine": fine(crank, 6.0),
+        "hirth36_coarse": coupling,
+        "hirth36_fine": fine(coupling, 0.5),
+    }
+    for name, mesh in parts.items():
+        mesh.export(out / f"{name}.stl")
+        print(name, len(mesh.faces), "faces", np.round(mesh.extents, 1).tolist(), "mm")
+
+
+if __name__ == "__main__":
+    main()

@@ -20,6 +20,7 @@ import numpy as np
 
 from vpp_core.camera.pose import Viewpoints, make_viewpoints
 from vpp_core.candidates.generator import place, tilt
+from vpp_core.cell.reach import Allowed
 from vpp_core.cover.density import CoverModel
 from vpp_core.cover.partial import PartialCover
 from vpp_core.mesh.part import Part
@@ -68,8 +69,10 @@ def adapt(
     solve: Solve,
     *,
     threads: int | None = None,
+    allowed: Allowed | None = None,
 ) -> Pool:
-    """Grow the candidate pool where quick covers need it (see module docstring)."""
+    """Grow the candidate pool where quick covers need it (see module docstring); new cameras
+    only where `allowed` (the setup's vpp_core.cell.reach predicate) lets them be."""
     spec = request.candidates
     if not isinstance(spec, CandidateGenerator) or not spec.adaptive:
         return Pool(views, trace, [])
@@ -83,7 +86,9 @@ def adapt(
         if rounds and count >= rounds[-1].views:
             rounds.append(_round(k, 0, len(views), cover, start))
             break
-        new = aimed_views(part, request, views, model, cover, backend, seed=spec.seed + k)
+        new = aimed_views(
+            part, request, views, model, cover, backend, seed=spec.seed + k, allowed=allowed
+        )
         rounds.append(_round(k, len(new), len(views), cover, start))
         if not len(new):
             break
@@ -115,6 +120,7 @@ def aimed_views(
     cover: PartialCover,
     backend: RayBackend,
     seed: int,
+    allowed: Allowed | None = None,
 ) -> Viewpoints:
     """New viewpoints aimed at the target rows of `cover` (may be empty)."""
     rows = target_rows(model, cover.result.selected)
@@ -128,7 +134,7 @@ def aimed_views(
     standoff = spec.standoff_mm or request.sensor.working_distance
     positions, gazes = [], []
     for _ in range(AIM_VIEWS):
-        pos, gaze = place(part, backend, centres, directions, standoff, spec.clearance_mm)
+        pos, gaze = place(part, backend, centres, directions, standoff, spec.clearance_mm, allowed)
         ok = np.isfinite(pos).all(axis=1)
         positions.append(pos[ok])
         gazes.append(gaze[ok])

@@ -24,9 +24,11 @@ import scipy.sparse as sp
 
 from vpp_core.camera.pose import Viewpoints
 from vpp_core.camera.sensor import Sensor
+from vpp_core.cell.scene import Occluders
 from vpp_core.errors import VppError
 from vpp_core.mesh.part import Part
 from vpp_core.trace.embree import EmbreeBackend
+from vpp_core.trace.occluded import OccludedBackend, scene_part
 from vpp_core.trace.packets import PacketBackend
 from vpp_core.trace.raster import RasterBackend
 from vpp_core.trace.rays import DEFAULT_BACKEND, BackendName, Block, Hits, RayBackend
@@ -43,9 +45,14 @@ BACKENDS: tuple[BackendName, ...] = get_args(BackendName)
 """Ray backends by name; the first, DEFAULT_BACKEND, is the fastest (bench/raytrace.py)."""
 
 
-def make_backend(part: Part, name: str | None = None) -> RayBackend:
-    """The ray backend called `name` (default DEFAULT_BACKEND), built over the part's mesh."""
+def make_backend(
+    part: Part, name: str | None = None, occluders: Occluders | None = None
+) -> RayBackend:
+    """The ray backend called `name` (default DEFAULT_BACKEND), built over the part's mesh;
+    with `occluders` (the setup's floor and fixtures), over both, hits on them blocked."""
     name = name or DEFAULT_BACKEND
+    if occluders is not None:
+        return OccludedBackend(make_backend(scene_part(part, occluders), name), part.n_faces)
     if name == "embree":
         return EmbreeBackend(part)
     if name == "raster":
@@ -99,13 +106,17 @@ def trace_counts(
     progress: Progress | None = None,
     cull: bool = True,
     tick: Callable[[], None] | None = None,
+    hull: np.ndarray | None = None,
 ) -> Trace:
-    """R for every view; with `cull`, only pixels inside the image of the part's hull are traced.
+    """R for every view; with `cull`, only pixels inside the image of the part's hull are traced
+    (or of `hull`, (h, 3) points whose hull holds the only faces that matter to the caller).
     `tick()` is called as each block of rays is done; an exception it raises stops the trace."""
     start = time.perf_counter()
     backend = backend or make_backend(part)
     rotations = views.rotations()
-    windows = view_windows(sensor, views, part_hull(part) if cull else None)
+    if cull and hull is None:
+        hull = part_hull(part)
+    windows = view_windows(sensor, views, hull if cull else None)
     duplicates = part.representative if has_duplicates(part) else None
     workers = threads or _cpu_count()
     tasks = [c for j, w in enumerate(windows) for c in _chunks(j, *w, backend.block_rays)]
@@ -170,6 +181,11 @@ def has_duplicates(part: Part) -> bool:
         own = np.arange(part.n_faces, dtype=part.representative.dtype)
         dup = _DUPLICATES[part] = bool((part.representative != own).any())
     return dup
+
+
+def hull_points(vertices: np.ndarray) -> np.ndarray:
+    """(h, 3) points whose convex hull contains `vertices` (n, 3): few, for view_windows."""
+    return _hull_points(vertices)
 
 
 HULL_CELLS = 32

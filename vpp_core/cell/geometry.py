@@ -8,8 +8,8 @@ from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
-import trimesh
 
+from vpp_core.cell.distance import MeshDistance
 from vpp_core.cell.setup import BoxShape, MeshShape, Setup
 from vpp_core.errors import SetupError
 
@@ -44,24 +44,13 @@ class Solid:
     clearance_mm: float = 0.0
 
     @cached_property
-    def mesh(self) -> trimesh.Trimesh:
-        """The solid as a trimesh (for the exact point-to-surface distance)."""
-        return trimesh.Trimesh(self.vertices, self.faces, process=False, validate=False)
+    def _distance(self) -> MeshDistance:
+        return MeshDistance(self.vertices, self.faces)
 
-    def distance(self, points: np.ndarray) -> np.ndarray:
-        """(n,) mm from each point (cell frame) to the nearest point of the surface."""
-        if not len(points):
-            return np.zeros(0)
-        lo, hi = self.vertices.min(axis=0), self.vertices.max(axis=0)
-        gap = np.linalg.norm(np.maximum(np.maximum(lo - points, points - hi), 0), axis=1)
-        out = gap.copy()  # a lower bound; exact where it might matter
-        near = gap <= self.clearance_mm
-        if near.any():
-            _, d, _ = trimesh.proximity.closest_point(  # type: ignore[no-untyped-call]
-                self.mesh, points[near]
-            )
-            out[near] = d
-        return np.asarray(out)
+    def distance(self, points: np.ndarray, within: float | None = None) -> np.ndarray:
+        """(n,) mm from each point (cell frame) to the nearest point of the surface: exact up
+        to `within` (default the clearance), beyond it inf."""
+        return self._distance(points, self.clearance_mm if within is None else within)
 
     def inside(self, points: np.ndarray) -> np.ndarray:
         """(n,) bool: the generalised winding number of the surface around each point is

@@ -13,7 +13,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import trimesh
 
 from vpp_core.cell.geometry import Cell, Solid, transform
 
@@ -82,12 +81,4 @@ def touching(
 
 def _near(solid: Solid, points: np.ndarray) -> np.ndarray:
     """(n,) bool: points within CONTACT_MM of the solid's surface (cell frame)."""
-    lo, hi = solid.vertices.min(axis=0) - CONTACT_MM, solid.vertices.max(axis=0) + CONTACT_MM
-    box = ((points >= lo) & (points <= hi)).all(axis=1)
-    out = np.zeros(len(points), dtype=bool)
-    if box.any():
-        _, d, _ = trimesh.proximity.closest_point(  # type: ignore[no-untyped-call]
-            solid.mesh, points[box]
-        )
-        out[box] = d <= CONTACT_MM
-    return out
+    return np.asarray(solid.distance(points, CONTACT_MM) <= CONTACT_MM)

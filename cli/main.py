@@ -654,7 +654,8 @@ def _setup_rows(doc: PlanDocument) -> list[tuple[str, str]]:
     return [
         (
             "of them setup_occluded",
-            f"{o.faces} ({o.area_mm2:.4g} mm²: {o.touching} touching, {o.blocked} blocked)",
+            f"{o.faces} ({o.area_mm2:.4g} mm²: {o.touching} touching, {o.blocked} blocked, "
+            f"{o.unreachable} unreachable)",
         )
     ]
 

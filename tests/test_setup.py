@@ -548,3 +548,78 @@ def test_predicate_against_direct_distances_to_a_fixture_and_a_keep_out_mesh() -
     with pytest.raises(ViewpointError, match=r"viewpoint 0 .*fixtures\[0\]"):
         req = request(None, candidates=[{"position": [50, 0, 30], "gaze": [0, 0, -1]}])
         plan(as_part(box_mesh([4, 4, 4], [0, 0, 200])), req, cell=cell)
+
+
+def centroid_seen(part: Part, sensor: Sensor, cams: list[Any], faces: np.ndarray) -> np.ndarray:
+    """(len(faces),) bool: some camera's ray to the face's centroid is valid on the part
+    alone (in the image, depth, incidence, first hit), cast with trimesh here."""
+    mesh = trimesh.Trimesh(part.vertices, part.faces, process=False)
+    out = np.zeros(len(faces), dtype=bool)
+    for m in c2w_of(cams):
+        c = part.vertices[part.faces[faces]].mean(axis=1)
+        d = c - m[:3, 3]
+        cam = d @ m[:3, :3]
+        z = cam[:, 2]
+        unit = d / np.linalg.norm(d, axis=1)[:, None]
+        ok = (z >= sensor.near_mm) & (z <= sensor.far_mm)
+        ok &= np.abs(cam[:, 0]) <= z * sensor.width_px / 2 / sensor.fx
+        ok &= np.abs(cam[:, 1]) <= z * sensor.height_px / 2 / sensor.fy
+        ok &= np.abs((unit * part.normals[faces]).sum(axis=1)) >= math.cos(math.radians(75))
+        first = mesh.ray.intersects_first(np.tile(m[:3, 3], (len(d), 1)), unit)
+        out |= ok & (first == faces)
+    return out
+
+
+def test_setup_occluded_unreachable_faces() -> None:
+    """Faces not touching the setup that it hides: the wall and the floor's clearance keep
+    every camera that would see them away."""
+    part = as_part(box_mesh([40, 40, 20], [0, 0, 10], subdivide=1))
+    wall = box_mesh([4, 200, 150], [0, 0, 0])  # 5 mm beside the +x face, standing on the floor
+    setup = {
+        "part_to_cell": rigid((0, 0, 0), [0, 0, 15]).tolist(),  # bottom 15 mm above the floor
+        "floor": {"z_mm": 0, "clearance_mm": 5},
+        "fixtures": [{"mesh": "wall", "to_cell": rigid((0, 0, 0), [27, 0, 75]).tolist()}],
+    }
+    cell = resolve(Setup.model_validate(setup), lambda s: (wall.vertices, wall.faces))
+    doc = plan(part, request(setup, candidates={"count": 60}), cell=cell)
+    occ = doc.setup_occluded
+    assert occ is not None and occ.touching == 0
+    normals = part.normals
+    plus_x, bottom = np.flatnonzero(normals[:, 0] > 0.99), np.flatnonzero(normals[:, 2] < -0.99)
+    ids = set(occ.ids)
+    assert set(plus_x) <= ids and set(bottom) <= ids <= set(doc.uncoverable.ids)
+    assert occ.blocked == 0 and occ.unreachable == len(plus_x) + len(bottom) == occ.faces
+    # independently: none of the plan's candidates sees these faces even on the part alone
+    # (the wall stops the generator's aim at +x, the floor's clearance cameras below), and a
+    # plan without the setup has candidates that do
+    assert not centroid_seen(part, SMALL, doc.candidates, np.r_[plus_x, bottom]).any()
+    free = plan(part, request(None, candidates={"count": 60}))
+    assert centroid_seen(part, SMALL, free.candidates, np.r_[plus_x, bottom]).all()
+    cams = np.array([c.position for c in doc.candidates]) + [0, 0, 15]
+    assert cams[:, 2].min() >= 5
+
+
+def test_setup_occluded_blocked_faces() -> None:
+    """A plan with explicit viewpoints: a clamp bar over the plate hides a strip of the top
+    face from the one camera that sees it without the bar (blocked)."""
+    part = as_part(box_mesh([40, 40, 4], [0, 0, 2], subdivide=3))
+    bar = box_mesh([6, 60, 6], [0, 0, 0])
+    setup = {
+        "floor": {},
+        "fixtures": [
+            {"mesh": "bar", "to_cell": rigid((0, 0, 0), [0, 0, 30]).tolist(), "clearance_mm": 5}
+        ],
+    }
+    cell = resolve(Setup.model_validate(setup), lambda s: (bar.vertices, bar.faces))
+    views = [{"position": [0, 0, 500], "gaze": [0, 0, -1]}]
+    doc = plan(part, request(setup, candidates=views), cell=cell)
+    occ = doc.setup_occluded
+    assert occ is not None and occ.blocked > 0 and occ.touching > 0  # bottom and sides touch
+    top = np.flatnonzero(part.normals[:, 2] > 0.99)
+    shade = np.array([i for i in occ.ids if i in set(top)])
+    assert len(shade) == occ.blocked
+    # independently: the camera sees them on the part alone, and not with the bar in the scene
+    assert centroid_seen(part, SMALL, doc.candidates, shade).all()
+    bar_tris = bar.vertices[bar.faces] + [0, 0, 30]
+    r = recount(part, SMALL, c2w_of(doc.candidates), [bar_tris, floor_triangles(np.eye(4), 0.0)])
+    assert (r[shade].sum(axis=1) == 0).all() and (r[np.setdiff1d(top, shade)].sum(axis=1) > 0).all()

@@ -310,11 +310,15 @@ class CoverRows(BaseModel):
 
 
 class SetupOccluded(Uncoverable):
-    """Uncoverable faces the setup hides (docs/cell.md): those touching the floor or a
-    fixture, and those some candidate sees when the floor and fixtures are taken away."""
+    """Uncoverable faces the setup hides (docs/cell.md, vpp_core.plan.cellplan): touching the
+    floor or a fixture, seen by a candidate without them, or by a candidate of the generator
+    without a setup (the setup forbids or blocks where it stands)."""
 
-    touching: int = Field(0, description="of them, faces within 0.05 mm of the floor or a fixture")
-    blocked: int = Field(0, description="of them, faces seen by a candidate without the setup")
+    touching: int = Field(0, description="faces within 0.05 mm of the floor or a fixture")
+    blocked: int = Field(0, description="others a candidate sees without the floor and fixtures")
+    unreachable: int = Field(
+        0, description="others seen by a candidate the generator places without a setup"
+    )
 
 
 class LeftOut(Uncoverable):
@@ -342,6 +346,7 @@ class Timings(BaseModel):
     solve: float = 0.0
     metrics: float = 0.0
     diagnostics: float = 0.0
+    setup: float = 0.0  # what the setup hides (setup_occluded), with a setup only
 
 
 class RaysInfo(BaseModel):

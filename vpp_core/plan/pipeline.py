@@ -283,8 +283,16 @@ def finish(
     chosen = np.array([v.id for v in doc.viewpoints], dtype=np.int64)
     doc.cover_rows = _cover_rows(part, request.target, patches, model, trace, chosen)
     doc.adaptive = list(rounds)
-    annotate(doc, part, request, cell, views, trace, threads)
+    if cell is not None:
+        free = request.model_copy(update={"setup": None})
+        with clock.stage("setup"):
+            annotate(doc, part, request, cell, views, trace, _generate(part, free))
     return doc
+
+
+def _generate(part: Part, request: PlanRequest) -> Callable[[RayBackend], Viewpoints]:
+    """backend -> the request's candidates traced on `backend`."""
+    return lambda backend: candidates_for(part, request, backend)[0]
 
 
 def grow(

@@ -106,17 +106,13 @@ def trace_counts(
     progress: Progress | None = None,
     cull: bool = True,
     tick: Callable[[], None] | None = None,
-    hull: np.ndarray | None = None,
 ) -> Trace:
-    """R for every view; with `cull`, only pixels inside the image of the part's hull are traced
-    (or of `hull`, (h, 3) points whose hull holds the only faces that matter to the caller).
+    """R for every view; with `cull`, only pixels inside the image of the part's hull are traced.
     `tick()` is called as each block of rays is done; an exception it raises stops the trace."""
     start = time.perf_counter()
     backend = backend or make_backend(part)
     rotations = views.rotations()
-    if cull and hull is None:
-        hull = part_hull(part)
-    windows = view_windows(sensor, views, hull if cull else None)
+    windows = view_windows(sensor, views, part_hull(part) if cull else None)
     duplicates = part.representative if has_duplicates(part) else None
     workers = threads or _cpu_count()
     tasks = [c for j, w in enumerate(windows) for c in _chunks(j, *w, backend.block_rays)]
@@ -181,11 +177,6 @@ def has_duplicates(part: Part) -> bool:
         own = np.arange(part.n_faces, dtype=part.representative.dtype)
         dup = _DUPLICATES[part] = bool((part.representative != own).any())
     return dup
-
-
-def hull_points(vertices: np.ndarray) -> np.ndarray:
-    """(h, 3) points whose convex hull contains `vertices` (n, 3): few, for view_windows."""
-    return _hull_points(vertices)
 
 
 HULL_CELLS = 32

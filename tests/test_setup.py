@@ -623,3 +623,23 @@ def test_setup_occluded_blocked_faces() -> None:
     bar_tris = bar.vertices[bar.faces] + [0, 0, 30]
     r = recount(part, SMALL, c2w_of(doc.candidates), [bar_tris, floor_triangles(np.eye(4), 0.0)])
     assert (r[shade].sum(axis=1) == 0).all() and (r[np.setdiff1d(top, shade)].sum(axis=1) > 0).all()
+
+
+def test_point_cloud_and_study_trace_the_setup() -> None:
+    from vpp_core.report.pointcloud import simulate_plan
+    from vpp_core.report.studies import resolution_sweep
+
+    plate, block, setup, _ = fixture_setup()
+    part = as_part(plate)
+    block_part = load_mesh(stl(block), "stl")
+    cell = resolve(Setup.model_validate(setup), lambda s: (block_part.vertices, block_part.faces))
+    doc = plan(part, request(setup, candidates={"count": 30}), cell=cell)
+    top = lambda pts: pts[(np.abs(pts[:, 2] - 2) < 1e-3) & (pts[:, 0] < -0.5)]  # noqa: E731
+    with_setup, _, _ = simulate_plan(part, doc, max_points=10**6, cell=cell)
+    without, _, _ = simulate_plan(part, doc.model_copy(update={"setup": None}), max_points=10**6)
+    assert len(top(with_setup.points)) == 0 and len(top(without.points)) > 100
+    sweep = resolution_sweep(part, request(setup, candidates={"count": 30}), [0.5], cell=cell)
+    free = resolution_sweep(part, request(None, candidates={"count": 30}), [0.5])
+    assert sweep.request.setup is not None
+    for a, b in zip(sweep.rows, free.rows, strict=True):
+        assert a.coverage.area < 0.5 < 0.8 < b.coverage.area  # the bottom, under the block

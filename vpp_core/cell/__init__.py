@@ -9,4 +9,9 @@
               adaptive candidates, the view sphere and explicit viewpoints
 
 All lengths are mm; `cell` is the cell frame, `part` the part's (mesh) frame.
+
+Extending (a robot arm, issue 36): a new optional key of `setup.Setup` (e.g. `robot`), what it
+needs loaded in `geometry.Cell`, and one more (name, test) entry in `reach.constraints`; the
+generator, the adaptive rounds, the view sphere and the explicit-viewpoint check then honour
+it without change. Geometry that blocks rays goes into `scene.occluders`.
 """

@@ -16,10 +16,13 @@ TRANSFORM_TOL = 1e-6
 """Largest |RᵀR - I| entry and |last row - (0, 0, 0, 1)| of a rigid 4×4 transform."""
 IDENTITY: list[list[float]] = np.eye(4).tolist()
 
-Row4 = Annotated[list[float], Field(min_length=4, max_length=4)]
+LIMIT_MM = 1e7
+"""Largest |coordinate| of a setup, mm (10 km): beyond any cell, far inside float range."""
+Coord = Annotated[float, Field(ge=-LIMIT_MM, le=LIMIT_MM)]
+Row4 = Annotated[list[Coord], Field(min_length=4, max_length=4)]
 Matrix4 = Annotated[list[Row4], Field(min_length=4, max_length=4)]
-Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
-Vec2 = Annotated[list[float], Field(min_length=2, max_length=2)]
+Vec3 = Annotated[list[Coord], Field(min_length=3, max_length=3)]
+Vec2 = Annotated[list[Coord], Field(min_length=2, max_length=2)]
 Units = Literal["mm", "cm", "m", "in"]
 
 
@@ -49,7 +52,7 @@ class Floor(_Strict):
     """The plane z = z_mm of the cell (a table top): it blocks rays, and camera centres stay
     at least clearance_mm above it."""
 
-    z_mm: float = 0.0
+    z_mm: Coord = 0.0
     clearance_mm: float = Field(50.0, ge=0, le=1e6)
 
 
@@ -70,9 +73,9 @@ class Cylinder(_Strict):
     """A vertical cylinder of the cell frame: axis through (x, y) = centre, mm."""
 
     centre: Vec2
-    radius_mm: float = Field(gt=0, le=1e9)
-    z_min_mm: float
-    z_max_mm: float
+    radius_mm: float = Field(gt=0, le=LIMIT_MM)
+    z_min_mm: Coord
+    z_max_mm: Coord
 
     @model_validator(mode="after")
     def _ordered(self) -> Cylinder:

@@ -16,6 +16,8 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from vpp_core.camera.sensor import make_sensor
+from vpp_core.cell.geometry import Cell, resolve
+from vpp_core.cell.setup import MeshShape
 from vpp_core.errors import VppError
 from vpp_core.mesh.part import UNITS_TO_MM, Part
 from vpp_core.mesh.tessellate import load_part
@@ -160,6 +162,13 @@ def _plan_options(p: argparse.ArgumentParser) -> None:
         help="split faces larger than this, mm² (big CAD facets; 1 for the paper camera)",
     )
     p.add_argument("--sensor", type=Path, help="sensor JSON (SPEC §2); default: paper camera")
+    p.add_argument(
+        "--setup",
+        type=Path,
+        metavar="SETUP.json",
+        help="the part in its cell: part_to_cell, floor, fixtures (mesh files relative to the "
+        "JSON), workspace, keep_out (docs/cell.md)",
+    )
     p.add_argument("--resolution", type=float, default=0.18, help="target resolution, mm")
     p.add_argument("--formulation", default="density", choices=["density", "visibility"])
     p.add_argument(
@@ -251,7 +260,7 @@ def _export_options(x: argparse.ArgumentParser) -> None:
         "--frame",
         default="cell",
         choices=["cell", "part"],
-        help="both are the part frame until the plan carries setup.part_to_cell",
+        help="cell: setup.part_to_cell applied (the part frame when the plan has no setup)",
     )
     x.add_argument("--unit", default="mm", choices=["mm", "m"])
     x.add_argument("-o", "--output", type=Path, help="write here (default: stdout)")
@@ -267,7 +276,7 @@ def run_export(args: argparse.Namespace) -> int:
     except ValidationError as exc:
         raise InputError(f"{args.plan}: not a plan document ({exc.error_count()} errors)") from None
     if args.format == "csv":
-        text = poses_csv(doc, args.unit)
+        text = poses_csv(doc, args.unit, args.frame)
     else:
         text = poses_json(doc, args.unit, args.frame) + "\n"
     if args.output:
@@ -313,6 +322,7 @@ def run_plan(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     part = _load(args, settings)
     threads = args.threads or settings.threads
+    cell = _cell(args, request, settings)
     with _progress(args.quiet) as report:
         doc = plan(
             part,
@@ -321,6 +331,7 @@ def run_plan(args: argparse.Namespace) -> int:
             threads=threads,
             progress=report,
             load_s=time.perf_counter() - start,
+            cell=cell,
         )
     console = Console()
     console.print(summary(doc))
@@ -373,6 +384,7 @@ def run_study(args: argparse.Namespace) -> int:
     settings = get_settings()
     request = _request(args)
     part = _load(args, settings)
+    cell = _cell(args, request, settings)
     run = resolution_sweep if args.kind == "resolution" else decimation_study
     values = args.resolutions if args.kind == "resolution" else args.ratios
     with _progress(args.quiet) as report:
@@ -383,6 +395,7 @@ def run_study(args: argparse.Namespace) -> int:
             limits=settings.limits(),
             threads=args.threads or settings.threads,
             progress=report,
+            cell=cell,
         )
     Console().print(study_table(study))
     text = study.model_dump_json(indent=1)
@@ -439,6 +452,24 @@ def _load(args: argparse.Namespace, settings: Settings) -> Part:
         max_face_area_mm2=args.max_face_area,
         max_faces=settings.max_faces,
     )
+
+
+def _cell(args: argparse.Namespace, request: PlanRequest, settings: Settings) -> Cell | None:
+    """The request's setup with its fixture and keep-out mesh files read (paths relative to
+    the SETUP.json)."""
+    folder = args.setup.parent if args.setup else Path(".")
+
+    def load(shape: MeshShape) -> tuple[Any, Any]:
+        path = folder / shape.mesh
+        data = _read(path, settings.max_upload_bytes)
+        fmt = path.suffix.lstrip(".") or "stl"
+        try:
+            mesh = load_part(data, fmt, shape.units, max_faces=settings.max_faces)
+        except VppError as exc:
+            raise InputError(f"{path}: {exc.detail}") from None
+        return mesh.vertices, mesh.faces
+
+    return resolve(request.setup, load)
 
 
 def _write_all(folder: Path, files: dict[str, bytes]) -> None:
@@ -498,6 +529,7 @@ def _request(args: argparse.Namespace) -> PlanRequest:
                 home=args.home,
             ),
             backend=args.backend,
+            setup=_read_json(args.setup) if args.setup else None,
         )
     except ValidationError as exc:
         err = exc.errors()[0]
@@ -598,6 +630,7 @@ def summary(doc: PlanDocument) -> Table:
         ),
         ("median resolution", f"{_g(m.resolution.median_mm)} mm"),
         ("uncoverable faces", f"{doc.uncoverable.faces} ({doc.uncoverable.area_mm2:.4g} mm²)"),
+        *_setup_rows(doc),
         *_tour_rows(doc),
         *_partial_rows(doc),
         *_diagnostic_rows(doc),
@@ -611,6 +644,20 @@ def summary(doc: PlanDocument) -> Table:
     for row in rows:
         table.add_row(*row)
     return table
+
+
+def _setup_rows(doc: PlanDocument) -> list[tuple[str, str]]:
+    """The summary row of the setup: uncoverable faces it hides (none without a setup)."""
+    o = doc.setup_occluded
+    if o is None:
+        return []
+    return [
+        (
+            "of them setup_occluded",
+            f"{o.faces} ({o.area_mm2:.4g} mm²: {o.touching} touching, {o.blocked} blocked, "
+            f"{o.unreachable} unreachable)",
+        )
+    ]
 
 
 def _tour_rows(doc: PlanDocument) -> list[tuple[str, str]]:

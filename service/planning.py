@@ -113,6 +113,8 @@ def submit_plan(store: Store, queue: Queue, settings: Settings, body: PlanSubmit
     request = PlanRequest.model_validate(body.model_dump(exclude={"mesh_id", "callback"}))
     if not store.exists(art.mesh_key(body.mesh_id)):
         raise VppError(f"mesh_id {body.mesh_id}: no such mesh; upload it with POST /v1/meshes")
+    if request.setup is not None:  # its meshes exist; explicit viewpoints clear of fixtures
+        check_request(request, settings.limits(), art.get_cell(store, request.setup))
     plan = art.plan_id(body.mesh_id, request)
     if needs_job(queue.connection, store, plan):
         if not store.exists(art.request_key(plan)):
@@ -128,6 +130,8 @@ def submit_study(store: Store, queue: Queue, settings: Settings, body: StudySubm
         raise VppError(f"mesh_id {body.mesh_id}: no such mesh; upload it with POST /v1/meshes")
     values = body.resolutions if body.kind == "resolution" else body.ratios
     check_study(body.kind, values, request, settings.limits())
+    if request.setup is not None:  # its meshes exist; explicit viewpoints clear of fixtures
+        check_request(request, settings.limits(), art.get_cell(store, request.setup))
     study = art.study_id(body.mesh_id, request, body.kind, values)
     if needs_job(queue.connection, store, study):
         if not store.exists(art.request_key(study)):

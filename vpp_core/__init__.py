@@ -4,7 +4,9 @@ The stages of a plan are its subpackages, in the order the data flows and the im
 
     mesh        bytes → Part (checked, canonical, in mm); remesh, area elements
     camera      the pinhole sensor and viewpoints (poses)
-    trace       ray backends and pixel windows → R (faces × candidates ray counts)
+    cell        the part in its cell: setup model, floor/fixture occluders, camera constraints
+    trace       ray backends and pixel windows → R (faces × candidates ray counts); with a
+                setup, its floor and fixtures in the scene
     candidates  where cameras may stand (uses trace to test that a gaze sees its target)
     cover       R → S or V (density), and the set cover: reductions, bounds, MIP, search
     plan        the pipeline, metrics, diagnostics, tour and the plan document

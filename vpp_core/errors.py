@@ -4,6 +4,8 @@ VppError                 anything the caller can fix by changing the input
 ├── MeshError            the file is not a usable triangle mesh (empty, corrupt, NaN, bad index)
 ├── SensorError          the camera specification is nonsense (fov >= 180, near >= far, ...)
 ├── ViewpointError       a viewpoint is malformed (zero gaze, up parallel to gaze, NaN)
+│                        or stands where the setup forbids it (below the floor, ...)
+├── SetupError           the cell setup is invalid or references a mesh that cannot be read
 ├── LimitError           the request exceeds a configured limit (faces, candidates, rays)
 │   └── TooLargeError    an upload exceeds the byte limit
 ├── SolverError          the set cover cannot be solved (no coverable face, infeasible model)
@@ -43,6 +45,12 @@ class ViewpointError(VppError):
     """A viewpoint (position, gaze, up) is invalid."""
 
     title = "Invalid viewpoint"
+
+
+class SetupError(VppError):
+    """The cell setup (issue 35) is invalid or one of its meshes cannot be read."""
+
+    title = "Invalid setup"
 
 
 class LimitError(VppError):

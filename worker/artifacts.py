@@ -23,6 +23,7 @@ import gzip
 import hashlib
 import io
 import json
+import re
 from typing import Any
 
 import numpy as np
@@ -30,6 +31,9 @@ import scipy.sparse as sp
 
 from vpp_core.camera.pose import Viewpoints
 from vpp_core.camera.sensor import Sensor
+from vpp_core.cell.geometry import Cell, MeshLoader, resolve
+from vpp_core.cell.setup import MeshShape, Setup
+from vpp_core.errors import NotFoundError, SetupError
 from vpp_core.mesh.part import Part
 from vpp_core.plan.document import CandidateInfo, CandidateOut, PlanDocument, PlanRequest
 from vpp_core.trace.raytrace import Trace
@@ -45,22 +49,32 @@ def digest(obj: Any) -> str:
 def plan_id(mesh_id: str, request: PlanRequest) -> str:
     """Content id of a plan: the mesh and every setting of the request, defaults filled in."""
     return digest(
-        {"kind": "plan/1", "mesh_id": mesh_id, "request": request.model_dump(mode="json")}
+        {
+            "kind": "plan/1",
+            "mesh_id": mesh_id,
+            "request": _no_setup(request.model_dump(mode="json")),
+        }
     )
 
 
 def trace_id(mesh_id: str, request: PlanRequest) -> str:
-    """Content id of R: mesh, sensor, candidates and backend (not target or solver)."""
-    dump = request.model_dump(mode="json", include={"sensor", "candidates", "backend"})
-    return digest({"kind": "trace/1", "mesh_id": mesh_id, **dump})
+    """Content id of R: mesh, sensor, candidates, backend and setup, which names its meshes by
+    content id (not target or solver); without a setup, the id it had before setups."""
+    dump = request.model_dump(mode="json", include={"sensor", "candidates", "backend", "setup"})
+    return digest({"kind": "trace/1", "mesh_id": mesh_id, **_no_setup(dump)})
+
+
+def _no_setup(dump: dict[str, Any]) -> dict[str, Any]:
+    """`dump` without its `setup` key when that is null (ids stay those of before setups)."""
+    return {k: v for k, v in dump.items() if k != "setup" or v is not None}
 
 
 def pool_trace_id(mesh_id: str, request: PlanRequest, candidates: list[CandidateOut]) -> str:
     """Content id of R over a candidate pool the adaptive rounds grew: mesh, sensor, backend
     and every pose of the pool (the same pool is traced once)."""
-    dump = request.model_dump(mode="json", include={"sensor", "backend"})
+    dump = request.model_dump(mode="json", include={"sensor", "backend", "setup"})
     poses = [c.model_dump(mode="json") for c in candidates]
-    return digest({"kind": "pool/1", "mesh_id": mesh_id, **dump, "poses": poses})
+    return digest({"kind": "pool/1", "mesh_id": mesh_id, **_no_setup(dump), "poses": poses})
 
 
 def plan_trace_id(mesh_id: str, request: PlanRequest, doc: PlanDocument) -> str:
@@ -217,17 +231,54 @@ def get_request(store: Store, plan: str) -> tuple[str, PlanRequest]:
 
 
 def put_views(
-    store: Store, trace: str, sensor: Sensor, views: Viewpoints, info: CandidateInfo
+    store: Store,
+    trace: str,
+    sensor: Sensor,
+    views: Viewpoints,
+    info: CandidateInfo,
+    setup: Setup | None = None,
 ) -> None:
-    """Store the sensor and candidates of a trace."""
+    """Store the sensor, candidates and setup (its floor and fixtures occlude) of a trace."""
     data = _npz(
         positions=views.positions,
         gazes=views.gazes,
         ups=views.ups,
         info=np.array(info.model_dump_json()),
         sensor=np.array(sensor.model_dump_json()),
+        setup=np.array("null" if setup is None else setup.model_dump_json()),
     )
     store.put(views_key(trace), data)
+
+
+def get_setup(store: Store, trace: str) -> Setup | None:
+    """The setup a trace's rays were traced in (None: none, or stored before setups)."""
+    z = _unnpz(store.get(views_key(trace)))
+    text = str(z["setup"]) if "setup" in z else "null"
+    return None if text == "null" else Setup.model_validate_json(text)
+
+
+def mesh_loader(store: Store) -> MeshLoader:
+    """A setup's mesh reader over the store: `mesh` is an uploaded mesh's id (already in mm);
+    an unknown id is NotFoundError naming it."""
+
+    def load(shape: MeshShape) -> tuple[np.ndarray, np.ndarray]:
+        if shape.units != "mm":
+            raise SetupError(
+                f"setup mesh {shape.mesh}: an uploaded mesh is in mm already; leave units mm"
+            )
+        if not re.fullmatch(r"[0-9a-f]{64}", shape.mesh) or not store.exists(mesh_key(shape.mesh)):
+            raise NotFoundError(
+                f"setup mesh {shape.mesh!r}: no such mesh; upload it with POST /v1/meshes"
+            )
+        part = get_part(store, shape.mesh)
+        return part.vertices, part.faces
+
+    return load
+
+
+def get_cell(store: Store, setup: Setup | None) -> Cell | None:
+    """The setup with its meshes read from the store (None: no setup)."""
+    return resolve(setup, mesh_loader(store))
 
 
 def get_views(store: Store, trace: str) -> tuple[Sensor, Viewpoints, CandidateInfo]:

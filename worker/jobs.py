@@ -28,8 +28,10 @@ from rq.job import Job, JobStatus
 
 from vpp_core.camera.pose import Viewpoints
 from vpp_core.camera.sensor import Sensor
+from vpp_core.cell.geometry import Cell
 from vpp_core.errors import VppError
 from vpp_core.mesh.part import Part
+from vpp_core.plan.cellplan import scene_occluders, setup_backend
 from vpp_core.plan.document import PlanRequest, Timings
 from vpp_core.plan.pipeline import candidates_for, check_limits, finish, grow, spent_s
 from vpp_core.report.plots import plan_plots
@@ -116,14 +118,22 @@ def _plan(ctx: Context, plan: str) -> dict[str, Any]:
         return {"plan": plan, "cached": True}
     mesh_id, request = art.get_request(ctx.store, plan)
     part = art.get_part(ctx.store, mesh_id)
+    cell = art.get_cell(ctx.store, request.setup)
     trace_id = art.trace_id(mesh_id, request)
     timings = Timings()
-    views, info, trace, reused = _trace(ctx, part, request, trace_id, timings)
+    views, info, trace, reused = _trace(ctx, part, request, trace_id, timings, cell)
     progress = stage_progress(ctx.meta)
     progress("adaptive", 0, 1)
     start = time.perf_counter()
     views, info, trace, rounds = grow(
-        part, request, views, info, trace, threads=ctx.settings.threads, spent_s=spent_s(timings)
+        part,
+        request,
+        views,
+        info,
+        trace,
+        threads=ctx.settings.threads,
+        cell=cell,
+        spent_s=spent_s(timings),
     )
     timings.adaptive = round(time.perf_counter() - start, 4)
     doc = finish(
@@ -137,6 +147,7 @@ def _plan(ctx: Context, plan: str) -> dict[str, Any]:
         progress=progress,
         reused=reused,
         rounds=rounds,
+        cell=cell,
     )
     ctx.meta.update(force=True, stage="plots")
     for name, png in plan_plots(part, doc).items():  # before the document: it means done
@@ -151,16 +162,22 @@ def _plan(ctx: Context, plan: str) -> dict[str, Any]:
 
 
 def _trace(
-    ctx: Context, part: Part, request: PlanRequest, trace_id: str, timings: Timings
+    ctx: Context,
+    part: Part,
+    request: PlanRequest,
+    trace_id: str,
+    timings: Timings,
+    cell: Cell | None = None,
 ) -> tuple[Viewpoints, Any, Trace, bool]:
-    """(views, candidate info, R, reused): from the store, or traced under the trace's lock."""
+    """(views, candidate info, R, reused): from the store, or traced under the trace's lock,
+    in the setup `cell`."""
     if not ctx.store.exists(art.counts_key(trace_id)):
         lock = TraceLock(ctx.job.connection, trace_id, ctx.job.id, ctx.settings.plan_timeout_s)
         with lock.hold(lambda: ctx.store.exists(art.counts_key(trace_id)), ctx.meta.update):
             if not ctx.store.exists(art.counts_key(trace_id)):
-                backend = make_backend(part, request.backend)
+                backend = setup_backend(part, request, cell)
                 start = time.perf_counter()
-                views, info = _candidates(ctx, part, request, trace_id, backend)
+                views, info = _candidates(ctx, part, request, trace_id, backend, cell)
                 timings.candidates = round(time.perf_counter() - start, 4)
                 trace = _fan_out(ctx, part, request.sensor, views, trace_id, backend)
                 timings.trace = round(trace.seconds, 4)
@@ -172,16 +189,21 @@ def _trace(
 
 
 def _candidates(
-    ctx: Context, part: Part, request: PlanRequest, trace_id: str, backend: RayBackend
+    ctx: Context,
+    part: Part,
+    request: PlanRequest,
+    trace_id: str,
+    backend: RayBackend,
+    cell: Cell | None = None,
 ) -> tuple[Viewpoints, Any]:
     """Generate (or read back) the candidates of `trace_id`, checked against the limits."""
     if ctx.store.exists(art.views_key(trace_id)):
         _, views, info = art.get_views(ctx.store, trace_id)
         return views, info
     ctx.meta.update(force=True, stage="candidates", done=0, total=1)
-    views, info = candidates_for(part, request, backend)
+    views, info = candidates_for(part, request, backend, cell)
     check_limits(len(views), request.sensor.n_pixels, ctx.settings.limits())
-    art.put_views(ctx.store, trace_id, request.sensor, views, info)
+    art.put_views(ctx.store, trace_id, request.sensor, views, info, request.setup)
     return views, info
 
 
@@ -265,7 +287,8 @@ def _chunk(
         done[0] += n
         ctx.meta.update(done=done[0])
 
-    tracer = make_backend(part, backend)
+    cell = art.get_cell(ctx.store, art.get_setup(ctx.store, trace_id))
+    tracer = make_backend(part, backend, scene_occluders(part, sensor, cell))
     trace = _trace_range(ctx, part, sensor, views, lo, hi, tracer, progress)
     ctx.store.put(key, art.trace_bytes(trace))
     ctx.meta.update(force=True, done=hi - lo)

@@ -42,6 +42,7 @@ def _study(ctx: Context, study: str) -> dict[str, Any]:
         limits=ctx.settings.limits(),
         threads=ctx.settings.threads,
         progress=stage_progress(ctx.meta),
+        cell=art.get_cell(ctx.store, request.setup),
     )
     plots = study_plots(doc)
     for name, png in plots.items():
@@ -62,7 +63,11 @@ def _cloud(ctx: Context, cloud: str) -> dict[str, Any]:
     part = art.get_part(ctx.store, mesh_id)
     ctx.meta.update(force=True, stage="point cloud", done=0, total=len(doc.viewpoints))
     points, counts, stats = simulate_plan(
-        part, doc, max_points=ctx.settings.max_cloud_points, workers=ctx.settings.threads or -1
+        part,
+        doc,
+        max_points=ctx.settings.max_cloud_points,
+        workers=ctx.settings.threads or -1,
+        cell=art.get_cell(ctx.store, doc.setup),
     )
     ply = io.BytesIO()
     write_ply(ply, points, counts)

@@ -119,8 +119,9 @@ def get_poses_csv(
     plan_id: str, store: StoreDep, unit: Unit = "mm", frame: Frame = "cell"
 ) -> Response:
     """The poses in visiting order for the cell: CSV `index,x,y,z,qw,qx,qy,qz` in `unit`
-    (quaternion of camera_to_world). Frame `cell` is the part frame until setup lands."""
-    return _poses(plan_id, store, lambda doc: poses_csv(doc, unit), "text/csv")
+    (quaternion of camera_to_world). Frame `cell`: setup.part_to_cell applied (without a
+    setup: the part frame)."""
+    return _poses(plan_id, store, lambda doc: poses_csv(doc, unit, frame), "text/csv")
 
 
 @router.get(
@@ -132,7 +133,8 @@ def get_poses_json(
     plan_id: str, store: StoreDep, unit: Unit = "mm", frame: Frame = "cell"
 ) -> Response:
     """The poses in visiting order as {position {x,y,z}, orientation {w,x,y,z}} in `unit`,
-    with home and cycle time. Frame `cell` is the part frame until setup lands."""
+    with home and cycle time. Frame `cell`: setup.part_to_cell applied (without a setup: the
+    part frame)."""
     return _poses(plan_id, store, lambda doc: poses_json(doc, unit, frame), "application/json")
 
 

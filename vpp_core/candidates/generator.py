@@ -35,6 +35,7 @@ from scipy.spatial import cKDTree
 
 from vpp_core.camera.pose import Viewpoints, make_viewpoints
 from vpp_core.camera.sensor import Sensor
+from vpp_core.cell.reach import Allowed
 from vpp_core.errors import VppError
 from vpp_core.mesh.part import Part
 from vpp_core.trace.rays import RayBackend
@@ -95,9 +96,14 @@ def _pitch_y(sensor: Sensor) -> float:
 
 
 def generate(
-    part: Part, sensor: Sensor, settings: GeneratorSettings, backend: RayBackend | None = None
+    part: Part,
+    sensor: Sensor,
+    settings: GeneratorSettings,
+    backend: RayBackend | None = None,
+    allowed: Allowed | None = None,
 ) -> GeneratedCandidates:
-    """Up to `settings.count` candidate viewpoints around the part (mm, part frame)."""
+    """Up to `settings.count` candidate viewpoints around the part (mm, part frame), where
+    `allowed` (the setup's vpp_core.cell.reach predicate; None: anywhere) lets a camera be."""
     if settings.count < 1:
         raise VppError("candidate count must be at least 1")
     for name in ("tilt_deg", "retry_tilt_deg"):
@@ -111,7 +117,9 @@ def generate(
     normals = smoothed_normals(planning, points, face_index, spacing / 2)
     backend = backend or make_backend(part)
     directions = gaze_directions(normals, settings)
-    positions, gazes = place(part, backend, points, directions, standoff, settings.clearance_mm)
+    positions, gazes = place(
+        part, backend, points, directions, standoff, settings.clearance_mm, allowed
+    )
     keep = np.isfinite(positions).all(axis=1)
     return GeneratedCandidates(
         views=make_viewpoints(positions[keep], gazes[keep]),
@@ -217,8 +225,10 @@ def place(
     directions: list[np.ndarray],
     wd: float,
     clearance_mm: float,
+    allowed: Allowed | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(k, 3) camera positions at `wd` mm (NaN = dropped) and gazes: per set, +d then -d."""
+    """(k, 3) camera positions at `wd` mm (NaN = dropped) and gazes: per set, +d then -d;
+    a camera `allowed` refuses (the setup's constraints) is not placed."""
     tree = _surface_tree(part)
     positions = np.full_like(points, np.nan)
     gazes = -directions[-1].copy()
@@ -228,6 +238,8 @@ def place(
             cams = points[todo] + sign * wd * d[todo]
             ok = _sees_target(backend, cams, -sign * d[todo], wd)
             ok &= tree.query(cams)[0] >= clearance_mm
+            if allowed is not None:
+                ok[ok] = allowed(cams[ok])
             idx = np.flatnonzero(todo)[ok]
             positions[idx] = cams[ok]
             gazes[idx] = -sign * d[idx]

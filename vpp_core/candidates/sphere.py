@@ -12,6 +12,7 @@ import numpy as np
 
 from vpp_core.camera.pose import Viewpoints, make_viewpoints
 from vpp_core.camera.sensor import Sensor
+from vpp_core.cell.reach import Allowed
 from vpp_core.mesh.part import Part
 
 
@@ -25,8 +26,15 @@ def fibonacci_directions(count: int) -> np.ndarray:
     )
 
 
-def view_sphere(part: Part, sensor: Sensor, count: int = 1000, shells: int = 2) -> Viewpoints:
-    """`count` viewpoints on `shells` spheres around the part's box centre (mm, part frame)."""
+def view_sphere(
+    part: Part,
+    sensor: Sensor,
+    count: int = 1000,
+    shells: int = 2,
+    allowed: Allowed | None = None,
+) -> Viewpoints:
+    """`count` viewpoints on `shells` spheres around the part's box centre (mm, part frame),
+    less those `allowed` (the setup's vpp_core.cell.reach predicate) refuses."""
     lo, hi = part.bounds
     centre = (lo + hi) / 2
     half = float(np.linalg.norm(hi - lo)) / 2
@@ -39,4 +47,7 @@ def view_sphere(part: Part, sensor: Sensor, count: int = 1000, shells: int = 2) 
         d = fibonacci_directions(len(ids))
         positions.append(centre + radius * d)
         gazes.append(-d)
-    return make_viewpoints(np.vstack(positions), np.vstack(gazes))
+    views = make_viewpoints(np.vstack(positions), np.vstack(gazes))
+    if allowed is None:
+        return views
+    return views.take(np.flatnonzero(allowed(views.positions)))

@@ -20,6 +20,7 @@ import numpy as np
 
 from vpp_core.camera.pose import Viewpoints, make_viewpoints
 from vpp_core.candidates.generator import place, tilt
+from vpp_core.cell.reach import Allowed
 from vpp_core.cover.density import CoverModel
 from vpp_core.cover.partial import PartialCover
 from vpp_core.mesh.part import Part
@@ -68,9 +69,11 @@ def adapt(
     solve: Solve,
     *,
     threads: int | None = None,
+    allowed: Allowed | None = None,
     deadline: float = float("inf"),
 ) -> Pool:
-    """Grow the candidate pool where quick covers need it (see module docstring); no round
+    """Grow the candidate pool where quick covers need it (see module docstring); new cameras
+    only where `allowed` (the setup's vpp_core.cell.reach predicate) lets them be; no round
     starts after `deadline` (time.perf_counter() seconds)."""
     spec = request.candidates
     if not isinstance(spec, CandidateGenerator) or not spec.adaptive:
@@ -87,7 +90,9 @@ def adapt(
         if rounds and count >= rounds[-1].views:
             rounds.append(_round(k, 0, len(views), cover, start))
             break
-        new = aimed_views(part, request, views, model, cover, backend, seed=spec.seed + k)
+        new = aimed_views(
+            part, request, views, model, cover, backend, seed=spec.seed + k, allowed=allowed
+        )
         rounds.append(_round(k, len(new), len(views), cover, start))
         if not len(new):
             break
@@ -119,6 +124,7 @@ def aimed_views(
     cover: PartialCover,
     backend: RayBackend,
     seed: int,
+    allowed: Allowed | None = None,
 ) -> Viewpoints:
     """New viewpoints aimed at the target rows of `cover` (may be empty)."""
     rows = target_rows(model, cover.result.selected)
@@ -132,7 +138,7 @@ def aimed_views(
     standoff = spec.standoff_mm or request.sensor.working_distance
     positions, gazes = [], []
     for _ in range(AIM_VIEWS):
-        pos, gaze = place(part, backend, centres, directions, standoff, spec.clearance_mm)
+        pos, gaze = place(part, backend, centres, directions, standoff, spec.clearance_mm, allowed)
         ok = np.isfinite(pos).all(axis=1)
         positions.append(pos[ok])
         gazes.append(gaze[ok])

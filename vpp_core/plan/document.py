@@ -8,6 +8,7 @@ from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, model_valida
 
 from vpp_core.camera.sensor import Sensor
 from vpp_core.candidates.generator import standoff_for
+from vpp_core.cell.setup import Setup
 from vpp_core.plan.cycle import Objective, TourOut
 from vpp_core.plan.diagnostics import Diagnostics
 from vpp_core.plan.metrics import Metrics
@@ -158,6 +159,11 @@ class PlanRequest(_Strict):
     candidates: Candidates = Field(default_factory=CandidateGenerator)
     solver: SolverSettings = SolverSettings()
     objective: Objective = Objective()
+    setup: Setup | None = Field(
+        None,
+        description="the part in its cell (SETUP.json, docs/cell.md): part_to_cell, floor, "
+        "fixtures (uploaded mesh ids), workspace, keep_out; none: the part alone in space",
+    )
     backend: BackendName = Field(
         DEFAULT_BACKEND,
         description="ray backend that computes R: `raster` (z-buffer of face ids at pixel "
@@ -213,10 +219,20 @@ class CandidateOut(BaseModel):
     up: list[float]
 
 
+class CellPose(BaseModel):
+    """A viewpoint's pose in the cell frame (setup.part_to_cell applied), mm."""
+
+    position: list[float]
+    gaze: list[float]
+    up: list[float]
+    camera_to_world: list[list[float]]
+
+
 class ViewpointOut(CandidateOut):
     """A selected pose with its 4×4 camera-to-world matrix (columns x, y, z, position)."""
 
     camera_to_world: list[list[float]]
+    cell: CellPose | None = Field(None, description="the pose in the cell frame (with a setup)")
 
 
 class CandidateInfo(BaseModel):
@@ -294,6 +310,18 @@ class CoverRows(BaseModel):
     with STRAY_RAYS (3) rays or more (grazing rays only): not in the cover."""
 
 
+class SetupOccluded(Uncoverable):
+    """Uncoverable faces the setup hides (docs/cell.md, vpp_core.plan.cellplan): touching the
+    floor or a fixture, seen by a candidate without them, or by a candidate of the generator
+    without a setup (the setup forbids or blocks where it stands)."""
+
+    touching: int = Field(0, description="faces within 0.05 mm of the floor or a fixture")
+    blocked: int = Field(0, description="others a candidate sees without the floor and fixtures")
+    unreachable: int = Field(
+        0, description="others seen by a candidate the generator places without a setup"
+    )
+
+
 class LeftOut(Uncoverable):
     """Coverable faces a partial cover leaves out."""
 
@@ -319,6 +347,7 @@ class Timings(BaseModel):
     solve: float = 0.0
     metrics: float = 0.0
     diagnostics: float = 0.0
+    setup: float = 0.0  # what the setup hides (setup_occluded), with a setup only
 
 
 class RaysInfo(BaseModel):
@@ -352,6 +381,8 @@ class PlanDocument(BaseModel):
     solver: SolverOut
     metrics: Metrics
     uncoverable: Uncoverable
+    setup: Setup | None = None
+    setup_occluded: SetupOccluded | None = None
     cover_rows: CoverRows | None = None
     adaptive: list[AdaptiveRound] = []
     partial: PartialInfo | None = None

@@ -13,12 +13,14 @@ import scipy.sparse as sp
 
 from vpp_core.camera.pose import Viewpoints, make_viewpoints
 from vpp_core.candidates.generator import GeneratorSettings, generate
+from vpp_core.cell.geometry import Cell, resolve
 from vpp_core.cover.density import CoverModel, cover_model, meets, stray_free
 from vpp_core.cover.partial import PartialCover, solve_partial
 from vpp_core.cover.patches import Patches, make_patches, patch_edge
 from vpp_core.errors import LimitError
 from vpp_core.mesh.part import Part
 from vpp_core.plan.adaptive import adapt
+from vpp_core.plan.cellplan import allowed, annotate, cell_of, check_explicit, setup_backend
 from vpp_core.plan.cycle import TourOut, make_tour
 from vpp_core.plan.diagnostics import diagnose
 from vpp_core.plan.document import (
@@ -45,7 +47,7 @@ from vpp_core.plan.metrics import evaluate
 from vpp_core.plan.objective import by_objective
 from vpp_core.plan.tour import path_length
 from vpp_core.trace.rays import RayBackend
-from vpp_core.trace.raytrace import Trace, make_backend, trace_counts
+from vpp_core.trace.raytrace import Trace, trace_counts
 
 FINAL_SHARE = 0.15
 """The final cover gets at least this share of the plan's time limit."""
@@ -67,9 +69,11 @@ class Limits:
 
 
 def candidates_for(
-    part: Part, request: PlanRequest, backend: RayBackend
+    part: Part, request: PlanRequest, backend: RayBackend, cell: Cell | None = None
 ) -> tuple[Viewpoints, CandidateInfo]:
-    """The request's candidates: generated (default generator) or the explicit list."""
+    """The request's candidates: generated (default generator) or the explicit list, where
+    the setup (`cell`, else the request's) lets cameras be."""
+    cell = cell_of(request, cell)
     spec = request.candidates
     if isinstance(spec, CandidateGenerator):
         settings = GeneratorSettings(
@@ -81,7 +85,7 @@ def candidates_for(
             spec.retry_tilt_deg or 0.0,
             spec.standoff_mm,
         )
-        gen = generate(part, request.sensor, settings, backend)
+        gen = generate(part, request.sensor, settings, backend, allowed(cell))
         info = CandidateInfo(
             source="generated",
             requested=spec.count,
@@ -98,7 +102,9 @@ def candidates_for(
         return gen.views, info
     n = len(spec.viewpoints)
     info = CandidateInfo(source="explicit", requested=n, generated=n)
-    return explicit_viewpoints(spec.viewpoints), info
+    views = explicit_viewpoints(spec.viewpoints)
+    check_explicit(cell, views)
+    return views, info
 
 
 def explicit_viewpoints(items: Sequence[ViewpointIn | CandidateOut]) -> Viewpoints:
@@ -122,14 +128,16 @@ def check_limits(n_candidates: int, n_pixels: int, limits: Limits) -> None:
         )
 
 
-def check_request(request: PlanRequest, limits: Limits) -> None:
-    """Refuse, before any work, a request over the limits or with malformed explicit viewpoints."""
+def check_request(request: PlanRequest, limits: Limits, cell: Cell | None = None) -> None:
+    """Refuse, before any work, a request over the limits or with malformed explicit viewpoints
+    or explicit viewpoints the setup forbids (`cell`; None: what needs no mesh of it)."""
     spec = request.candidates
     if isinstance(spec, CandidateGenerator):
         check_limits(spec.count, request.sensor.n_pixels, limits)
     else:
         check_limits(len(spec.viewpoints), request.sensor.n_pixels, limits)
-        explicit_viewpoints(spec.viewpoints)  # ViewpointError now
+        views = explicit_viewpoints(spec.viewpoints)  # ViewpointError now
+        check_explicit(cell or resolve(request.setup, meshes=False), views)
 
 
 def spent_s(timings: Timings) -> float:
@@ -193,14 +201,17 @@ def plan(
     threads: int | None = None,
     progress: Progress | None = None,
     load_s: float = 0.0,
+    cell: Cell | None = None,
 ) -> PlanDocument:
-    """Plan the fewest viewpoints covering `part` as `request` asks (the whole pipeline)."""
+    """Plan the fewest viewpoints covering `part` as `request` asks (the whole pipeline), in
+    the setup `cell` (its meshes read; else the request's setup, which must name none)."""
     clock = _Clock(progress)
     clock.timings.load = round(load_s, 4)
-    backend = backend or make_backend(part, request.backend)
-    check_request(request, limits)
+    cell = cell_of(request, cell)
+    backend = backend or setup_backend(part, request, cell)
+    check_request(request, limits, cell)
     with clock.stage("candidates"):
-        views, info = candidates_for(part, request, backend)
+        views, info = candidates_for(part, request, backend, cell)
     check_limits(len(views), request.sensor.n_pixels, limits)
     with clock.stage("trace", len(views)):
         done = _counter(progress, "trace", len(views))
@@ -210,7 +221,7 @@ def plan(
     with clock.stage("adaptive"):
         spent = spent_s(clock.timings)
         views, info, trace, rounds = grow(
-            part, request, views, info, trace, backend, threads, spent_s=spent
+            part, request, views, info, trace, backend, threads, cell=cell, spent_s=spent
         )
     return finish(
         part,
@@ -223,6 +234,7 @@ def plan(
         progress=progress,
         backend=backend,
         rounds=rounds,
+        cell=cell,
     )
 
 
@@ -239,9 +251,12 @@ def finish(
     reused: bool = False,
     backend: RayBackend | None = None,
     rounds: Sequence[AdaptiveRound] = (),
+    cell: Cell | None = None,
 ) -> PlanDocument:
-    """From R on: matrices, cover, visiting order, metrics, diagnostics and the document."""
+    """From R on: matrices, cover, visiting order, metrics, diagnostics and the document
+    (with the setup `cell`, else the request's)."""
     clock = _Clock(progress, timings)
+    cell = cell_of(request, cell)
     with clock.stage("matrices"):
         patches = cover_patches(part, request.target)
         model = cover_model(
@@ -271,7 +286,7 @@ def finish(
             trace.counts,
             model,
             cover.result.selected,
-            backend or make_backend(part, trace.backend),
+            backend or setup_backend(part, request, cell, trace.backend),
             partial=request.target.fraction < 1,
             normal_candidates=info.source == "generated" and not info.tilt_deg,
         )
@@ -280,7 +295,16 @@ def finish(
     chosen = np.array([v.id for v in doc.viewpoints], dtype=np.int64)
     doc.cover_rows = _cover_rows(part, request.target, patches, model, trace, chosen)
     doc.adaptive = list(rounds)
+    if cell is not None:
+        free = request.model_copy(update={"setup": None})
+        with clock.stage("setup"):
+            annotate(doc, part, request, cell, views, trace, _generate(part, free))
     return doc
+
+
+def _generate(part: Part, request: PlanRequest) -> Callable[[RayBackend], Viewpoints]:
+    """backend -> the request's candidates traced on `backend`."""
+    return lambda backend: candidates_for(part, request, backend)[0]
 
 
 def grow(
@@ -291,12 +315,15 @@ def grow(
     trace: Trace,
     backend: RayBackend | None = None,
     threads: int | None = None,
+    cell: Cell | None = None,
     *,
     spent_s: float = 0.0,
 ) -> tuple[Viewpoints, CandidateInfo, Trace, list[AdaptiveRound]]:
     """The candidate pool grown by the adaptive rounds (vpp_core.plan.adaptive), its R and
-    the rounds; unchanged when the request does not ask for them. `spent_s`: wall seconds
-    the plan spent before (no round starts past ADAPT_SHARE of the time limit)."""
+    the rounds; unchanged when the request does not ask for them. New cameras only where
+    the setup (`cell`, else the request's) lets them be. `spent_s`: wall seconds the plan
+    spent before (no round starts past ADAPT_SHARE of the time limit)."""
+    cell = cell_of(request, cell)
     patches = cover_patches(part, request.target)
     t = request.target
 
@@ -308,11 +335,19 @@ def grow(
         settings = request.solver.model_copy(update={"name": "greedy", "time_limit_s": seconds})
         return solve(model, part.areas, t, settings, threads)
 
-    backend = backend or make_backend(part, trace.backend)
-    budget = ADAPT_SHARE * request.solver.time_limit_s - spent_s
-    deadline = time.perf_counter() + budget
+    backend = backend or setup_backend(part, request, cell, trace.backend)
+    deadline = time.perf_counter() + ADAPT_SHARE * request.solver.time_limit_s - spent_s
     pool = adapt(
-        part, request, views, trace, backend, model_of, quick, threads=threads, deadline=deadline
+        part,
+        request,
+        views,
+        trace,
+        backend,
+        model_of,
+        quick,
+        threads=threads,
+        allowed=allowed(cell),
+        deadline=deadline,
     )
     added = len(pool.views) - len(views)
     return pool.views, info.model_copy(update={"added": added}), pool.trace, pool.rounds

@@ -2,8 +2,9 @@
 quaternion), in visiting order, in mm or m.
 
 The quaternion (w, x, y, z; unit, w >= 0) is the rotation of the viewpoint's camera_to_world
-(columns: the camera's x, y, z axes in the frame). Frames: `cell` and `part` are the same
-frame until the plan carries a part-to-cell transform (setup.part_to_cell, a later issue).
+(columns: the camera's x, y, z axes in the frame). Frames: `part` is the mesh's frame (the
+document's top-level poses), `cell` the plan's viewpoints' `cell` poses (setup.part_to_cell
+applied); a plan without a setup has the two frames equal.
 """
 
 from __future__ import annotations
@@ -22,7 +23,10 @@ Frame = Literal["cell", "part"]
 SCALE: dict[str, float] = {"mm": 1.0, "m": 1e-3}
 """Factor from the plan's mm to each unit."""
 COLUMNS = ["index", "x", "y", "z", "qw", "qx", "qy", "qz"]
-FRAME_NOTE = "cell = part frame until setup.part_to_cell exists"
+FRAME_NOTES = {
+    "part": "the part (mesh) frame",
+    "cell": "the cell frame: setup.part_to_cell applied (identity without a setup)",
+}
 
 
 def quaternion(rotation: np.ndarray) -> np.ndarray:
@@ -57,22 +61,23 @@ def rotation(q: np.ndarray) -> np.ndarray:
     )
 
 
-def pose_rows(doc: PlanDocument, unit: Unit = "mm") -> list[list[float]]:
+def pose_rows(doc: PlanDocument, unit: Unit = "mm", frame: Frame = "cell") -> list[list[float]]:
     """One row per viewpoint in visiting order: index, x, y, z (unit), qw, qx, qy, qz."""
     rows = []
     for i, v in enumerate(doc.viewpoints):
-        c2w = np.asarray(v.camera_to_world)
-        xyz = (np.asarray(v.position) * SCALE[unit]).tolist()
+        pose = v.cell if frame == "cell" and v.cell is not None else v
+        c2w = np.asarray(pose.camera_to_world)
+        xyz = (np.asarray(pose.position) * SCALE[unit]).tolist()
         rows.append([i, *xyz, *quaternion(c2w[:3, :3]).tolist()])
     return rows
 
 
-def poses_csv(doc: PlanDocument, unit: Unit = "mm") -> str:
+def poses_csv(doc: PlanDocument, unit: Unit = "mm", frame: Frame = "cell") -> str:
     """The poses as CSV with a header row (COLUMNS); floats at full precision."""
     out = io.StringIO()
     writer = csv.writer(out, lineterminator="\n")
     writer.writerow(COLUMNS)
-    for row in pose_rows(doc, unit):
+    for row in pose_rows(doc, unit, frame):
         writer.writerow([int(row[0]), *(repr(float(x)) for x in row[1:])])
     return out.getvalue()
 
@@ -87,16 +92,20 @@ def poses_json(doc: PlanDocument, unit: Unit = "mm", frame: Frame = "cell") -> s
             "position": dict(zip("xyz", r[1:4], strict=True)),
             "orientation": dict(zip("wxyz", r[4:8], strict=True)),
         }
-        for r, v in zip(pose_rows(doc, unit), doc.viewpoints, strict=True)
+        for r, v in zip(pose_rows(doc, unit, frame), doc.viewpoints, strict=True)
     ]
     tour = doc.tour
+    home = None if tour is None or tour.home is None else np.asarray(tour.home, dtype=float)
+    if home is not None and frame == "cell" and doc.setup is not None:
+        m = np.asarray(doc.setup.part_to_cell)
+        home = m[:3, :3] @ home + m[:3, 3]
     body = {
         "format": "vpp-poses/1",
         "frame": frame,
-        "frame_note": FRAME_NOTE,
+        "frame_note": FRAME_NOTES[frame],
         "unit": unit,
         "mesh_id": doc.mesh.id,
-        "home": None if tour is None or tour.home is None else _scaled(tour.home, unit),
+        "home": None if home is None else _scaled(home.tolist(), unit),
         "cycle_time_s": None if tour is None else tour.cycle_time_s,
         "poses": poses,
     }

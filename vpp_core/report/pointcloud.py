@@ -18,8 +18,10 @@ from scipy.spatial import cKDTree
 
 from vpp_core.camera.pose import Viewpoints
 from vpp_core.camera.sensor import Sensor
+from vpp_core.cell.geometry import Cell, resolve
 from vpp_core.errors import LimitError
 from vpp_core.mesh.part import Part
+from vpp_core.plan.cellplan import scene_occluders
 from vpp_core.plan.document import PlanDocument
 from vpp_core.plan.pipeline import explicit_viewpoints
 from vpp_core.trace.rays import RayBackend
@@ -184,14 +186,17 @@ def simulate(
 
 
 def simulate_plan(
-    part: Part, doc: PlanDocument, *, max_points: int, workers: int = -1
+    part: Part, doc: PlanDocument, *, max_points: int, workers: int = -1, cell: Cell | None = None
 ) -> tuple[PointCloud, np.ndarray, CloudStats]:
-    """`simulate` for a plan's selected viewpoints, its sensor, target r̄ and ray backend."""
+    """`simulate` for a plan's selected viewpoints, its sensor, target r̄ and ray backend, with
+    its setup's floor and fixtures in the scene (`cell`: the setup with its meshes read; else
+    the document's, which must then name no mesh)."""
+    cell = cell if cell is not None else resolve(doc.setup)
     return simulate(
         part,
         doc.sensor,
         explicit_viewpoints(doc.viewpoints),
-        make_backend(part, doc.rays.backend),
+        make_backend(part, doc.rays.backend, scene_occluders(part, doc.sensor, cell)),
         doc.target.resolution_mm,
         max_points=max_points,
         workers=workers,

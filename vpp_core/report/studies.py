@@ -16,10 +16,12 @@ import numpy as np
 from pydantic import BaseModel, Field
 
 from vpp_core.candidates.generator import planning_mesh
+from vpp_core.cell.geometry import Cell
 from vpp_core.cover.density import CoverModel, Formulation, cover_model
 from vpp_core.cover.partial import PartialCover
 from vpp_core.errors import VppError
 from vpp_core.mesh.part import Part, part_from_arrays
+from vpp_core.plan.cellplan import cell_of, setup_backend
 from vpp_core.plan.document import (
     CandidateGenerator,
     MeshInfo,
@@ -39,7 +41,7 @@ from vpp_core.plan.pipeline import (
     mesh_info,
     solve,
 )
-from vpp_core.trace.raytrace import Trace, make_backend, trace_counts
+from vpp_core.trace.raytrace import Trace, trace_counts
 
 DEFAULT_RESOLUTIONS = [0.1, 0.12, 0.14, 0.16, 0.18, 0.2, 0.25, 0.3, 0.4, 0.5]
 """Target resolutions (mm) of a resolution sweep when none are given."""
@@ -202,12 +204,15 @@ def resolution_sweep(
     limits: Limits = DEFAULT_LIMITS,
     threads: int | None = None,
     progress: Progress | None = None,
+    cell: Cell | None = None,
 ) -> Study:
-    """#OVP against r̄ (mm) for both formulations from one trace (paper Fig. 3 right)."""
+    """#OVP against r̄ (mm) for both formulations from one trace (paper Fig. 3 right), in the
+    setup `cell` (else the request's)."""
     start = time.perf_counter()
     check_study("resolution", resolutions, request, limits)
-    backend = make_backend(part, request.backend)
-    views, info = candidates_for(part, request, backend)
+    cell = cell_of(request, cell)
+    backend = setup_backend(part, request, cell)
+    views, info = candidates_for(part, request, backend, cell)
     check_limits(len(views), request.sensor.n_pixels, limits)
     _report(progress, "trace", 0, len(views))
     trace = trace_counts(part, request.sensor, views, backend=backend, threads=threads)
@@ -239,24 +244,27 @@ def decimation_study(
     limits: Limits = DEFAULT_LIMITS,
     threads: int | None = None,
     progress: Progress | None = None,
+    cell: Cell | None = None,
 ) -> Study:
     """Plans made entirely on decimated copies (candidates, R, cover), their selections
-    re-traced on the original mesh and judged there (paper Fig. 3 left)."""
+    re-traced on the original mesh and judged there (paper Fig. 3 left), in the setup `cell`
+    (else the request's)."""
     start = time.perf_counter()
     check_study("decimation", ratios, request, limits)
     assert isinstance(request.candidates, CandidateGenerator)
     plain = request.model_copy(
         update={"candidates": request.candidates.model_copy(update={"decimate": None})}
     )
-    original = make_backend(part, request.backend)
+    cell = cell_of(request, cell)
+    original = setup_backend(part, request, cell)
     rows: list[DecimationRow] = []
     traced = 0.0
     seconds: list[float] = []
     for k, ratio in enumerate(ratios):
         _report(progress, "ratio", k, len(ratios))
         planning = decimated_part(part, ratio)
-        backend = make_backend(planning, request.backend)
-        views, info = candidates_for(planning, plain, backend)
+        backend = setup_backend(planning, request, cell)
+        views, info = candidates_for(planning, plain, backend, cell)
         check_limits(len(views), request.sensor.n_pixels, limits)
         trace = trace_counts(planning, request.sensor, views, backend=backend, threads=threads)
         traced += trace.seconds

@@ -24,9 +24,11 @@ import scipy.sparse as sp
 
 from vpp_core.camera.pose import Viewpoints
 from vpp_core.camera.sensor import Sensor
+from vpp_core.cell.scene import Occluders
 from vpp_core.errors import VppError
 from vpp_core.mesh.part import Part
 from vpp_core.trace.embree import EmbreeBackend
+from vpp_core.trace.occluded import OccludedBackend, scene_part
 from vpp_core.trace.packets import PacketBackend
 from vpp_core.trace.raster import RasterBackend
 from vpp_core.trace.rays import DEFAULT_BACKEND, BackendName, Block, Hits, RayBackend
@@ -43,9 +45,14 @@ BACKENDS: tuple[BackendName, ...] = get_args(BackendName)
 """Ray backends by name; the first, DEFAULT_BACKEND, is the fastest (bench/raytrace.py)."""
 
 
-def make_backend(part: Part, name: str | None = None) -> RayBackend:
-    """The ray backend called `name` (default DEFAULT_BACKEND), built over the part's mesh."""
+def make_backend(
+    part: Part, name: str | None = None, occluders: Occluders | None = None
+) -> RayBackend:
+    """The ray backend called `name` (default DEFAULT_BACKEND), built over the part's mesh;
+    with `occluders` (the setup's floor and fixtures), over both, hits on them blocked."""
     name = name or DEFAULT_BACKEND
+    if occluders is not None:
+        return OccludedBackend(make_backend(scene_part(part, occluders), name), part.n_faces)
     if name == "embree":
         return EmbreeBackend(part)
     if name == "raster":

@@ -11,6 +11,7 @@ import io
 import itertools
 import os
 import shutil
+import time
 from collections.abc import Iterator
 from typing import Any
 
@@ -75,11 +76,13 @@ def live(api, start_workers) -> Iterator[tuple[Any, str]]:
 class Page:
     """A viewer page with its console errors collected."""
 
-    def __init__(self, browser: Any, url: str, wait_ready: bool = True) -> None:
+    def __init__(self, browser: Any, url: str, wait_ready: bool = True, before: Any = None) -> None:
         self.page = browser.new_page(viewport=VIEWPORT, device_scale_factor=1)
         self.errors: list[str] = []
         self.page.on("console", lambda m: self.errors.extend([m.text] if m.type == "error" else []))
         self.page.on("pageerror", lambda e: self.errors.append(str(e)))
+        if before:
+            before(self.page)  # routes and listeners that must see the first request
         self.page.goto(url)
         if wait_ready:
             self.ready()
@@ -256,6 +259,51 @@ def test_the_page_of_a_running_plan_waits_for_it_and_an_unknown_one_says_so(live
         "window.vppViewer.failed"
     )
     assert page.page.locator("#status.error").is_visible()
+
+
+def test_the_page_of_a_queued_plan_is_told_its_progress_and_polls_only_without_the_stream(
+    api, start_workers, browser
+) -> None:
+    """While the plan waits for a worker the page follows its events (GET /v1/jobs/{id}/events)
+    and asks for the job once; a page whose event stream fails polls every second instead and
+    still shows the plan."""
+    client = api
+    with serving(api.app) as url:
+        mesh = upload_sample(client)
+        body = {"mesh_id": mesh, "sensor": SENSOR, "candidates": {"count": 40},
+                "target": {"resolution_mm": 1.0}, "profile": "paper"}  # fmt: skip
+        plan = submit(client, body)  # no worker yet: queued
+        gets: dict[str, list[str]] = {"pushed": [], "polled": []}
+
+        def counting(name: str, block: bool) -> Any:
+            def before(page: Any) -> None:
+                job = f"/v1/jobs/{plan}"
+                page.on(
+                    "request", lambda r: gets[name].extend([r.url] if r.url.endswith(job) else [])
+                )
+                if block:
+                    page.route(f"**{job}/events", lambda route: route.abort())
+
+            return before
+
+        view = f"{url}/v1/plans/{plan}/view"
+        pushed = Page(browser, view, wait_ready=False, before=counting("pushed", False))
+        polled = Page(browser, view, wait_ready=False, before=counting("polled", True))
+        time.sleep(3.5)  # queued meanwhile
+        assert "queued" in pushed.page.locator("#status").inner_text()
+        start_workers(1)
+        pushed.ready()
+        polled.ready()
+        assert len(gets["pushed"]) == pushed.js("window.vppViewer.polls") == 1, gets
+        assert pushed.js("window.vppViewer.pushed") >= 2  # queued ... done
+        assert pushed.js("window.vppViewer.polling") is False
+        assert polled.js("window.vppViewer.polling") is True
+        assert len(gets["polled"]) >= 4, gets  # 3.5 s queued at one poll a second, and more
+        assert pushed.js("window.vppViewer.cameraCount()") > 0
+        assert polled.js("window.vppViewer.cameraCount()") == pushed.js(
+            "window.vppViewer.cameraCount()"
+        )
+        assert pushed.errors == []
 
 
 def test_with_api_keys_the_page_asks_for_one_and_sends_it(

@@ -1,6 +1,6 @@
 // The plan viewer page: /v1/plans/{id}/view. Loads the plan document, the mesh geometry and
 // the plan's per-face results, draws them, and exposes `window.vppViewer` for tests and scripts.
-import { AuthError, getBinary, getJson, postJson, setKey, base } from './api.js';
+import { AuthError, HttpError, followEvents, getBinary, getJson, postJson, setKey, base } from './api.js';
 import { unpack } from './packed.js';
 import { DESCRIPTIONS, FIXED, GHOST, faceColours, fitScale, gradient, position } from './palette.js';
 import { PlanScene } from './scene3d.js';
@@ -34,18 +34,42 @@ const TIPS = {
   uncoverable: 'Faces that no candidate sees: no plan can cover them.',
 };
 
-/** Wait for the plan's job while it runs; the plan document once it has succeeded. */
+const TERMINAL = ['succeeded', 'failed', 'canceled'];
+const STAGE_NOTES = { compiling: ' (compiling the ray tracer once after install: about half a minute)' };
+
+function jobStatus(status, p) {
+  const note = (p && STAGE_NOTES[p.stage]) || '';
+  return `Plan ${status}${p ? `: ${p.stage} ${p.done}/${p.total}` : ''}${note}…`;
+}
+
+/** The plan document once the plan's job has succeeded; meanwhile its progress, pushed by the
+ * API (Server-Sent Events), or polled every POLL_MS where the stream fails. */
 async function planDocument(plan) {
-  for (;;) {
-    const job = await getJson(`/v1/jobs/${plan}`); // asked first: no 404 while it runs
-    if (job.status === 'succeeded') return getJson(`/v1/plans/${plan}`);
-    if (job.status === 'failed' || job.status === 'canceled') {
-      throw new Error(`the plan's job ${job.status}: ${job.error?.detail ?? ''}`);
+  let job = await getJson(`/v1/jobs/${plan}`); // asked first: no 404 while it runs
+  api.polls = 1;
+  status(jobStatus(job.status, job.progress));
+  if (!TERMINAL.includes(job.status)) {
+    try {
+      let current = job.status;
+      job = await followEvents(`/v1/jobs/${plan}/events`, (name, data) => {
+        api.pushed += 1;
+        if (name === 'status') current = data.status;
+        if (name === 'progress') status(jobStatus(current, data));
+      });
+    } catch (e) {
+      if (e instanceof AuthError || (e instanceof HttpError && e.status === 404)) throw e;
+      console.info('job events unavailable, polling instead:', e.message || e);
+      api.polling = true;
     }
-    const p = job.progress;
-    status(`Plan ${job.status}${p ? `: ${p.stage} ${p.done}/${p.total}` : ''}…`);
-    await new Promise((r) => setTimeout(r, POLL_MS));
   }
+  while (!TERMINAL.includes(job.status)) {
+    await new Promise((r) => setTimeout(r, POLL_MS));
+    job = await getJson(`/v1/jobs/${plan}`);
+    api.polls += 1;
+    status(jobStatus(job.status, job.progress));
+  }
+  if (job.status === 'succeeded') return getJson(`/v1/plans/${plan}`);
+  throw new Error(`the plan's job ${job.status}: ${job.error?.detail ?? ''}`);
 }
 
 /** Forget the plan shown while another loads: no selection, no camera view, no old figures. */
@@ -289,6 +313,10 @@ async function run(plan) {
 // for tests and scripts: the page's state and a few actions
 const api = {
   ready: false,
+  /** GET /v1/jobs/{id} made while waiting for the plan, events pushed, whether it fell back. */
+  polls: 0,
+  pushed: 0,
+  polling: false,
   get plan() { return state.plan; },
   get doc() { return state.doc; },
   cameraCount: () => view.labels?.length ?? 0,

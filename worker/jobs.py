@@ -32,6 +32,7 @@ from vpp_core.errors import VppError
 from vpp_core.mesh.part import Part
 from vpp_core.plan.document import PlanRequest, Timings
 from vpp_core.plan.pipeline import candidates_for, check_limits, finish, grow
+from vpp_core.plan.warm import warm
 from vpp_core.report.plots import plan_plots
 from vpp_core.report.scene import plan_scene
 from vpp_core.trace.rays import RayBackend
@@ -118,8 +119,9 @@ def _plan(ctx: Context, plan: str) -> dict[str, Any]:
     part = art.get_part(ctx.store, mesh_id)
     trace_id = art.trace_id(mesh_id, request)
     timings = Timings()
-    views, info, trace, reused = _trace(ctx, part, request, trace_id, timings)
     progress = stage_progress(ctx.meta)
+    warm(request.backend, progress)  # stage `compiling` while numba compiles (fresh install)
+    views, info, trace, reused = _trace(ctx, part, request, trace_id, timings)
     progress("adaptive", 0, 1)
     start = time.perf_counter()
     views, info, trace, rounds = grow(

@@ -44,6 +44,7 @@ from vpp_core.plan.document import (
 from vpp_core.plan.metrics import evaluate
 from vpp_core.plan.objective import by_objective
 from vpp_core.plan.tour import path_length
+from vpp_core.plan.warm import warm
 from vpp_core.trace.rays import RayBackend
 from vpp_core.trace.raytrace import Trace, make_backend, trace_counts
 
@@ -189,6 +190,7 @@ def plan(
     clock.timings.load = round(load_s, 4)
     backend = backend or make_backend(part, request.backend)
     check_request(request, limits)
+    warm(backend.name, progress)  # stage `compiling` while numba compiles, on a fresh install
     with clock.stage("candidates"):
         views, info = candidates_for(part, request, backend)
     check_limits(len(views), request.sensor.n_pixels, limits)

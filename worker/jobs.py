@@ -86,7 +86,8 @@ class Context:
             raise RuntimeError("not running inside an RQ job")
         settings = get_settings()
         queue = Queue(job.origin, connection=job.connection)
-        return cls(settings, open_store(settings.store_url), job, queue, _Meta(job))
+        store = open_store(settings.store_url, job.connection)
+        return cls(settings, store, job, queue, _Meta(job))
 
 
 def plan_job(plan: str) -> dict[str, Any]:

@@ -237,6 +237,19 @@ def test_the_formulation_toggle_computes_and_shows_the_other_plan(live, browser)
     )
     assert left["doc"] in (None, "visibility") and left["active"] == "visibility", left
     assert not left["frame"] and left["selected"] is None, left
+    # ... nor its cameras, colours or slider: the part alone, grey, the toggle saying it computes
+    pending = page.page.wait_for_function(
+        "(() => { const v = window.vppViewer;"
+        " if (v.ready || document.getElementById('metrics').innerHTML !== '') return null;"
+        " return {cameras: v.cameraCount(), drawn: v.frustumSegments(),"
+        " colours: new Set(v.shownColours()).size, labels: Object.keys(v.labelBoxes()).length,"
+        " step: document.getElementById('step-label').textContent,"
+        " slider: document.getElementById('step').disabled,"
+        " button: document.querySelector('#formulations button.active').textContent}; })()",
+        timeout=30_000,
+    ).json_value()
+    assert pending == {"cameras": 0, "drawn": 0, "colours": 1, "labels": 0, "step": "– / 0",
+                       "slider": True, "button": "visibility (computing…)"}, pending  # fmt: skip
     page.ready()
     other = client.get(f"/v1/plans/{related['visibility']['id']}").json()
     assert other["target"]["formulation"] == "visibility"
@@ -485,10 +498,11 @@ def _summary_text(page: Page) -> None:
 
 
 def test_the_bundle_and_the_geometry_are_gzipped_on_the_wire(api) -> None:
-    """Sent gzipped to a client that takes gzip, whole to one that does not."""
+    """Sent gzipped to a client that takes gzip, whole to one that does not; JSON answers too
+    (the plan document the page loads: /openapi.json stands for them here)."""
     client = api
     mesh = upload_sample(client)
-    for path in ("/static/viewer/viewer.js", f"/v1/meshes/{mesh}/geometry"):
+    for path in ("/static/viewer/viewer.js", f"/v1/meshes/{mesh}/geometry", "/openapi.json"):
         plain = client.get(path, headers={"Accept-Encoding": "identity"})
         packed = client.get(path, headers={"Accept-Encoding": "gzip"})
         assert plain.status_code == packed.status_code == 200

@@ -72,13 +72,17 @@ async function planDocument(plan) {
   throw new Error(`the plan's job ${job.status}: ${job.error?.detail ?? ''}`);
 }
 
-/** Forget the plan shown while another loads: no selection, no camera view, no old figures. */
+/** Forget the plan shown while another loads: no selection, no camera view, no old figures,
+ * cameras, colours or slider range (the part stays, grey). */
 function forget() {
   if (!state.doc) return;
   select(null);
   state.doc = null;
-  for (const id of ['metrics', 'legend']) $(id).innerHTML = '';
+  for (const id of ['metrics', 'legend', 'camera-info']) $(id).innerHTML = '';
   $('summary').classList.add('pending');
+  view.clearPlan();
+  stepper(0);
+  $('step-label').textContent = '– / 0';
 }
 
 async function load(plan) {
@@ -187,6 +191,9 @@ async function switchTo(related) {
   api.ready = false;
   for (const b of $('formulations').children) {
     b.classList.toggle('active', b.dataset.formulation === related.formulation);
+    if (b.dataset.formulation === related.formulation && !related.available) {
+      b.textContent = `${related.formulation} (computing…)`;
+    }
   }
   try {
     if (!related.available) await postJson('/v1/plans', related.request);

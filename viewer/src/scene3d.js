@@ -9,6 +9,7 @@ import { GHOST } from './palette.js';
 const FRUSTUM = 0x1f6fb2;
 const SELECTED = 0xe8590c;
 const TOUR = 0x7048e8;
+const PENDING = 200; // the part's grey while a plan loads (no colour claims anything)
 const DIM = 255; // faces the selected camera does not see fade towards white, keeping a tint
 const DIM_MIX = 0.72;
 const GLYPH = 0.25; // a camera glyph is a pyramid this many part diagonals deep (≤ near_mm)
@@ -91,6 +92,16 @@ export class PlanScene {
     this.aims = viewpoints.map((_, k) => this.aimPoint(k));
     this.buildCameras();
     this.paint();
+  }
+
+  /** No plan drawn (while another one loads): the part in one neutral grey, no cameras, tour
+   * or numbers, nothing selected. */
+  clearPlan() {
+    if (!this.part || !this.sensor) return;
+    const grey = new Uint8Array(3 * this.nFaces).fill(PENDING);
+    this.states = null;
+    this.setPlan(grey, [], this.sensor, new Uint32Array(1), new Uint32Array(0));
+    this.render();
   }
 
   /** Where viewpoint k looks on the part: the centre of the face it sees nearest its central

@@ -477,8 +477,29 @@ def test_colours_spread_over_the_plans_range_and_problems_only_pales_the_rest(
     ghost = shown[met][0]
     assert (shown[met] == ghost).all() and (shown[~met] == colours[~met]).all()
     assert not (colours == ghost).all(axis=1).any()  # a colour of its own
-    assert page.page.locator("#legend .when-problems").is_visible()
+    assert page.page.locator("#legend .when-problems").first.is_visible()
+    # each problem face has a dot in its colour (unlit: exact, unlike the shaded faces),
+    # however small, seen where nothing is in front of it
+    problems = np.flatnonzero(np.isin(arrays["state"], [1, 2, 3]))
+    marks = page.js("window.vppViewer.problemMarks()")
+    assert len(problems) > 0 and sorted(m["face"] for m in marks) == problems.tolist()
+    page.drawn()
+    image = page.canvas_rgb()
+    h, w, _ = image.shape
+    front = [m for m in marks if m["facing"] and 0 <= m["xy"][0] < w and 0 <= m["xy"][1] < h]
+    dotted = [m for m in front if _dot_at(image, m["xy"], m["rgb"])]
+    # (most of those facing the eye lie deep in the bore, behind the part: their dots hidden)
+    assert len(dotted) >= 5, (len(dotted), len(front))
+    page.js("window.vppViewer.problemsOnly(false)")
+    assert page.js("window.vppViewer.problemMarks()") == []
     assert page.errors == []
+
+
+def _dot_at(image: np.ndarray, xy: list[float], rgb: list[int]) -> bool:
+    """Whether the 3 × 3 pixels around xy hold the colour rgb (± 2 per channel, unlit)."""
+    x, y = int(xy[0]), int(xy[1])
+    patch = image[max(y - 1, 0) : y + 2, max(x - 1, 0) : x + 2].reshape(-1, 3)
+    return bool((np.abs(patch - rgb) <= 2).all(axis=1).any())
 
 
 def _summary_text(page: Page) -> None:

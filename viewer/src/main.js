@@ -161,6 +161,7 @@ function legend(doc, scene, scale) {
       ${['uncovered', 'uncoverable', 'excluded'].map((k, i) => `<li class="state">${swatch(FIXED[k])}${DESCRIPTIONS[k]}: ${counts[i + 2]}${NB}faces</li>`).join('')}
       <li class="when-selected">${swatch([225, 232, 238])}faded: not seen by the selected viewpoint</li>
       <li class="when-problems">${swatch(GHOST)}pale: meets r̄ (problems only)</li>
+      <li class="when-problems"><span class="dot"></span>a dot on each face that misses r̄, is uncovered or uncoverable, however small</li>
     </ul>`;
   api.stateCounts = counts;
   api.scale = scale;
@@ -343,6 +344,7 @@ const api = {
   setShading: (on) => { $('shading').checked = on; view.setShading(on); },
   show: (what, on) => view.show(what, on),
   drawn: () => view.drawn(),
+  problemMarks: () => view.problemMarks(),
   /** Mean milliseconds per frame over a full turn of the eye in n drawn steps (benchmarks). */
   orbit: async (n = 60) => {
     const t0 = performance.now();

@@ -34,7 +34,7 @@ from vpp_core.plan.document import PlanRequest, Timings
 from vpp_core.plan.pipeline import candidates_for, check_limits, finish, grow
 from vpp_core.plan.warm import warm
 from vpp_core.report.plots import plan_plots
-from vpp_core.report.scene import plan_scene
+from vpp_core.report.scene import plan_scene, unpack
 from vpp_core.trace.rays import RayBackend
 from vpp_core.trace.raytrace import Trace, join_traces, make_backend, trace_counts
 from worker import artifacts as art
@@ -142,12 +142,15 @@ def _plan(ctx: Context, plan: str) -> dict[str, Any]:
         rounds=rounds,
     )
     ctx.meta.update(force=True, stage="plots")
-    for name, png in plan_plots(part, doc).items():  # before the document: it means done
+    scene = plan_scene(part, doc, trace.counts)
+    faces = unpack(scene)[1]  # the part in cameras.png wears the viewer's r* colours
+    pngs = plan_plots(part, doc, faces=(faces["state"], faces["resolution_mm"]))
+    for name, png in pngs.items():  # before the document: it means done
         ctx.store.put(art.plot_key(f"plans/{plan}", name), png)
     if doc.candidate_info.added:  # R of the grown pool, for the scene and re-plans
         pool = art.pool_trace_id(mesh_id, request, doc.candidates)
         ctx.store.put(art.counts_key(pool), art.trace_bytes(trace))
-    art.put_scene(ctx.store, plan, plan_scene(part, doc, trace.counts))
+    art.put_scene(ctx.store, plan, scene)
     art.put_plan(ctx.store, plan, doc)
     ctx.meta.update(force=True, stage="done")
     return {"plan": plan, "viewpoints": len(doc.viewpoints), "trace": trace_id}

@@ -180,3 +180,30 @@ def test_the_cameras_close_up_wears_the_r_colours() -> None:
     assert hue(coloured) == hue(expected)
     grey = drawn(cameras_figure(part, doc))
     assert np.ptp(grey, axis=1).max() < 0.05  # no colour without the faces
+
+
+def test_the_cli_colours_from_its_selection_as_the_service_does_from_r() -> None:
+    """Without the candidates' R (the CLI), tracing the selected viewpoints again gives each
+    face the state and r* that the service's scene gives from the whole R."""
+    from vpp_core.mesh.part import load_mesh
+    from vpp_core.plan.document import CandidateGenerator, PlanRequest, Target
+    from vpp_core.plan.pipeline import candidates_for, finish
+    from vpp_core.report.scene import plan_scene, selected_face_results, unpack
+    from vpp_core.samples import sample_stl
+    from vpp_core.trace.raytrace import make_backend, trace_counts
+
+    part = load_mesh(sample_stl(), "stl")
+    request = PlanRequest(
+        profile="paper",
+        candidates=CandidateGenerator(count=30),
+        target=Target(resolution_mm=0.3, formulation="visibility"),
+    )
+    backend = make_backend(part)
+    views, info = candidates_for(part, request, backend)
+    trace = trace_counts(part, request.sensor, views, backend=backend)
+    doc = finish(part, request, views, info, trace, backend=backend)
+    scene = unpack(plan_scene(part, doc, trace.counts))[1]
+    again = selected_face_results(part, doc)
+    assert len(set(scene["state"].tolist())) >= 3  # met, unmet or uncovered, ...
+    np.testing.assert_array_equal(again.state, scene["state"])
+    np.testing.assert_array_equal(again.resolution_mm, scene["resolution_mm"])

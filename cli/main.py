@@ -349,8 +349,11 @@ def run_plan(args: argparse.Namespace) -> int:
         from vpp_core.report.plots import (
             plan_plots,  # matplotlib: imported only when plots are asked
         )
+        from vpp_core.report.scene import selected_face_results
 
-        files = {"plan.json": text.encode(), **plan_plots(part, doc, stats)}
+        faces = selected_face_results(part, doc, threads)  # cameras.png in the viewer's colours
+        pngs = plan_plots(part, doc, stats, faces=(faces.state, faces.resolution_mm))
+        files = {"plan.json": text.encode(), **pngs}
         if stats is not None:
             files["point-cloud.json"] = stats.model_dump_json(indent=1).encode()
         _write_all(args.plots, files)

@@ -14,7 +14,7 @@ from service.app import create_app
 from vpp_core.errors import VppError
 from worker import logs
 from worker.embedded import EmbeddedRedis
-from worker.pool import WorkerPool
+from worker.pool import WorkerPool, start_warming, stop_warming
 from worker.settings import get_settings
 
 
@@ -30,6 +30,7 @@ def run_serve(args: argparse.Namespace) -> int:
             pool = WorkerPool(redis.url, count, settings.threads)
             pool.watch()  # a worker killed (OOM) is started again
             stack.callback(pool.stop)
+            stack.callback(stop_warming, start_warming())
             url, note = redis.url, f"embedded Redis, {count} local workers"
         app = create_app(settings.model_copy(update={"redis_url": url}))
         print(
@@ -56,8 +57,10 @@ def run_workers(args: argparse.Namespace) -> int:
     if not url:
         raise VppError("no Redis to work for: set VPP_REDIS_URL or pass --url")
     pool = WorkerPool(url, args.workers or settings.workers, settings.threads, args.burst)
+    warming = start_warming()
 
     def stop(signum: int, frame: FrameType | None) -> None:
+        stop_warming(warming)
         pool.stop()
         sys.exit(0)
 
@@ -67,4 +70,6 @@ def run_workers(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         pool.stop()
         return 130
+    finally:
+        stop_warming(warming)
     return 0

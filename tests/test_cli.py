@@ -7,6 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 import trimesh
 
@@ -324,6 +325,25 @@ def test_plan_point_cloud_and_plots(plate_files, tmp_path):
     # density at 0.18 mm selects both views (test above): one point per valid ray of R
     assert len(doc["viewpoints"]) == 2 and stats["points"] == doc["rays"]["valid"]
     assert {"histogram.png", "cameras.png", "neighbours.png"} <= {p.name for p in plots.iterdir()}
+
+
+def test_plots_colour_the_part_by_r(plate_files, tmp_path, monkeypatch):
+    """`vpp plan --plots`: cameras.png gets each face's state and r* (the viewer's colours),
+    the plate's faces all met at 0.18 mm by its two views."""
+    from cli.main import main
+    from vpp_core.report import plots
+
+    given = []
+    monkeypatch.setattr(
+        plots, "cameras_png", lambda part, doc, faces=None: given.append(faces) or b""
+    )
+    mesh, views = plate_files
+    code = main(["plan", str(mesh), "--candidates-file", str(views), "-q", "--plots",
+                 str(tmp_path / "plots")])  # fmt: skip
+    assert code == 0
+    (faces,) = given
+    state, r = faces
+    assert (state == 0).all() and np.isfinite(r).all() and (r <= 0.18).all(), (state, r)
 
 
 @pytest.mark.parametrize(

@@ -109,3 +109,101 @@ def test_camera_numbers_sit_where_the_central_ray_meets_the_part() -> None:
     aims = _aim_points(box, positions, gazes, wd=300.0)
     np.testing.assert_allclose(aims[0], [0.0, 0.0, 5.0], atol=1e-9)  # the top face
     assert np.abs(aims[1]).max() <= 5.0 + 1e-9  # on the box, not 300 mm away
+
+
+def _random_faces(n: int, target: float, seed: int = 3) -> tuple[np.ndarray, np.ndarray]:
+    """(state, r*) of n faces: every state, r* around the target (mm, float32 as stored)."""
+    rng = np.random.default_rng(seed)
+    state = rng.integers(0, 5, n).astype(np.uint8)
+    r = (target * np.exp(rng.normal(0.0, 0.8, n))).astype(np.float32)
+    r[state == 0] = np.minimum(r[state == 0], target)
+    r[state == 1] = np.maximum(r[state == 1], target * 1.001)
+    r[state >= 2] = np.inf
+    return state, r
+
+
+def test_face_colours_are_the_viewers_for_the_same_faces() -> None:
+    """The plots colour a face as palette.js does (run by node on the same arrays)."""
+    import shutil
+    import subprocess
+
+    from vpp_core.report.plots import face_colours
+
+    node = shutil.which("node")
+    if not node:
+        pytest.skip("no node to run viewer/src/palette.js")
+    script = (
+        f"import {{ fitScale, faceColours }} from '{PALETTE_JS.as_posix()}';"
+        "const d = JSON.parse(require('fs').readFileSync(0, 'utf8'));"
+        "const r = Float32Array.from(d.r.map((x) => (x === null ? Infinity : x)));"
+        "const s = fitScale(d.state, r, d.target);"
+        "process.stdout.write(JSON.stringify(Array.from(faceColours(d.state, r, s))));"
+    ).replace("require('fs')", "(await import('fs'))")
+    state, r = _random_faces(500, 0.18)
+    no_met = state != 0  # and plans with no met (no unmet) face: the scale's default ends
+    for pick in (np.ones(len(state), bool), no_met, state != 1, state >= 2):
+        data = {"state": state[pick].tolist(), "target": 0.18,
+                "r": [None if not np.isfinite(x) else float(x) for x in r[pick]]}  # fmt: skip
+        out = subprocess.run(
+            [node, "--input-type=module", "-e", script],
+            input=json.dumps(data), capture_output=True, text=True, timeout=60, check=True,
+        )  # fmt: skip
+        viewer = np.array(json.loads(out.stdout), dtype=np.uint8).reshape(-1, 3)
+        np.testing.assert_array_equal(face_colours(state[pick], r[pick], 0.18), viewer)
+
+
+def test_the_cameras_close_up_wears_the_r_colours() -> None:
+    """cameras.png's part is coloured by r* as in the viewer (each face its colour times a grey
+    light), not a grey blob; without the faces it stays grey."""
+    from matplotlib.collections import PolyCollection
+
+    from tests.conftest import plate_part
+    from vpp_core.plan.document import CandidateGenerator, PlanRequest
+    from vpp_core.plan.pipeline import plan
+    from vpp_core.report.plots import cameras_figure, face_colours
+
+    part = plate_part(n=6)
+    doc = plan(part, PlanRequest(candidates=CandidateGenerator(count=6)))
+    state, r = _random_faces(part.n_faces, doc.target.resolution_mm)
+
+    def drawn(fig: object) -> np.ndarray:
+        close = fig.axes[1]  # type: ignore[attr-defined]
+        (part_faces,) = [c for c in close.collections if isinstance(c, PolyCollection)]
+        return np.asarray(part_faces.get_facecolor())[:, :3]
+
+    def hue(rgb: np.ndarray) -> list[tuple[float, ...]]:
+        """Colours with the light divided out, as a sorted multiset."""
+        return sorted(map(tuple, np.round(rgb / rgb.max(axis=1, keepdims=True), 2)))
+
+    expected = face_colours(state, r, doc.target.resolution_mm) / 255.0
+    coloured = drawn(cameras_figure(part, doc, (state, r)))
+    assert hue(coloured) == hue(expected)
+    grey = drawn(cameras_figure(part, doc))
+    assert np.ptp(grey, axis=1).max() < 0.05  # no colour without the faces
+
+
+def test_the_cli_colours_from_its_selection_as_the_service_does_from_r() -> None:
+    """Without the candidates' R (the CLI), tracing the selected viewpoints again gives each
+    face the state and r* that the service's scene gives from the whole R."""
+    from vpp_core.mesh.part import load_mesh
+    from vpp_core.plan.document import CandidateGenerator, PlanRequest, Target
+    from vpp_core.plan.pipeline import candidates_for, finish
+    from vpp_core.report.scene import plan_scene, selected_face_results, unpack
+    from vpp_core.samples import sample_stl
+    from vpp_core.trace.raytrace import make_backend, trace_counts
+
+    part = load_mesh(sample_stl(), "stl")
+    request = PlanRequest(
+        profile="paper",
+        candidates=CandidateGenerator(count=30),
+        target=Target(resolution_mm=0.3, formulation="visibility"),
+    )
+    backend = make_backend(part)
+    views, info = candidates_for(part, request, backend)
+    trace = trace_counts(part, request.sensor, views, backend=backend)
+    doc = finish(part, request, views, info, trace, backend=backend)
+    scene = unpack(plan_scene(part, doc, trace.counts))[1]
+    again = selected_face_results(part, doc)
+    assert len(set(scene["state"].tolist())) >= 3  # met, unmet or uncovered, ...
+    np.testing.assert_array_equal(again.state, scene["state"])
+    np.testing.assert_array_equal(again.resolution_mm, scene["resolution_mm"])

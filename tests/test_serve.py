@@ -93,7 +93,13 @@ def test_a_killed_serve_leaves_no_workers_or_redis(tmp_path: Path) -> None:
     children = subprocess.run(
         ["pgrep", "-P", str(proc.pid)], capture_output=True, text=True
     ).stdout.split()
-    assert len(children) == 3  # redis-server and two workers
+    kinds = [Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0") for pid in children]
+    workers = [k for k in kinds if k[1:3] == [b"-m", b"worker"]]
+    assert len(workers) == 2 and sum(b"redis-server" in k[0] for k in kinds) == 1, kinds
+    # and, while numba's cache is filled, the warming process (worker.pool.start_warming)
+    assert len(kinds) <= 4 and all(
+        k in workers or b"redis" in k[0] or b"warm" in k[2] for k in kinds
+    )
     proc.kill()
     proc.wait()
     deadline = time.monotonic() + 15

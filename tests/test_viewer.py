@@ -11,6 +11,7 @@ import io
 import itertools
 import os
 import shutil
+import time
 from collections.abc import Iterator
 from typing import Any
 
@@ -75,11 +76,13 @@ def live(api, start_workers) -> Iterator[tuple[Any, str]]:
 class Page:
     """A viewer page with its console errors collected."""
 
-    def __init__(self, browser: Any, url: str, wait_ready: bool = True) -> None:
+    def __init__(self, browser: Any, url: str, wait_ready: bool = True, before: Any = None) -> None:
         self.page = browser.new_page(viewport=VIEWPORT, device_scale_factor=1)
         self.errors: list[str] = []
         self.page.on("console", lambda m: self.errors.extend([m.text] if m.type == "error" else []))
         self.page.on("pageerror", lambda e: self.errors.append(str(e)))
+        if before:
+            before(self.page)  # routes and listeners that must see the first request
         self.page.goto(url)
         if wait_ready:
             self.ready()
@@ -234,6 +237,19 @@ def test_the_formulation_toggle_computes_and_shows_the_other_plan(live, browser)
     )
     assert left["doc"] in (None, "visibility") and left["active"] == "visibility", left
     assert not left["frame"] and left["selected"] is None, left
+    # ... nor its cameras, colours or slider: the part alone, grey, the toggle saying it computes
+    pending = page.page.wait_for_function(
+        "(() => { const v = window.vppViewer;"
+        " if (v.ready || document.getElementById('metrics').innerHTML !== '') return null;"
+        " return {cameras: v.cameraCount(), drawn: v.frustumSegments(),"
+        " colours: new Set(v.shownColours()).size, labels: Object.keys(v.labelBoxes()).length,"
+        " step: document.getElementById('step-label').textContent,"
+        " slider: document.getElementById('step').disabled,"
+        " button: document.querySelector('#formulations button.active').textContent}; })()",
+        timeout=30_000,
+    ).json_value()
+    assert pending == {"cameras": 0, "drawn": 0, "colours": 1, "labels": 0, "step": "– / 0",
+                       "slider": True, "button": "visibility (computing…)"}, pending  # fmt: skip
     page.ready()
     other = client.get(f"/v1/plans/{related['visibility']['id']}").json()
     assert other["target"]["formulation"] == "visibility"
@@ -256,6 +272,51 @@ def test_the_page_of_a_running_plan_waits_for_it_and_an_unknown_one_says_so(live
         "window.vppViewer.failed"
     )
     assert page.page.locator("#status.error").is_visible()
+
+
+def test_the_page_of_a_queued_plan_is_told_its_progress_and_polls_only_without_the_stream(
+    api, start_workers, browser
+) -> None:
+    """While the plan waits for a worker the page follows its events (GET /v1/jobs/{id}/events)
+    and asks for the job once; a page whose event stream fails polls every second instead and
+    still shows the plan."""
+    client = api
+    with serving(api.app) as url:
+        mesh = upload_sample(client)
+        body = {"mesh_id": mesh, "sensor": SENSOR, "candidates": {"count": 40},
+                "target": {"resolution_mm": 1.0}, "profile": "paper"}  # fmt: skip
+        plan = submit(client, body)  # no worker yet: queued
+        gets: dict[str, list[str]] = {"pushed": [], "polled": []}
+
+        def counting(name: str, block: bool) -> Any:
+            def before(page: Any) -> None:
+                job = f"/v1/jobs/{plan}"
+                page.on(
+                    "request", lambda r: gets[name].extend([r.url] if r.url.endswith(job) else [])
+                )
+                if block:
+                    page.route(f"**{job}/events", lambda route: route.abort())
+
+            return before
+
+        view = f"{url}/v1/plans/{plan}/view"
+        pushed = Page(browser, view, wait_ready=False, before=counting("pushed", False))
+        polled = Page(browser, view, wait_ready=False, before=counting("polled", True))
+        time.sleep(3.5)  # queued meanwhile
+        assert "queued" in pushed.page.locator("#status").inner_text()
+        start_workers(1)
+        pushed.ready()
+        polled.ready()
+        assert len(gets["pushed"]) == pushed.js("window.vppViewer.polls") == 1, gets
+        assert pushed.js("window.vppViewer.pushed") >= 2  # queued ... done
+        assert pushed.js("window.vppViewer.polling") is False
+        assert polled.js("window.vppViewer.polling") is True
+        assert len(gets["polled"]) >= 4, gets  # 3.5 s queued at one poll a second, and more
+        assert pushed.js("window.vppViewer.cameraCount()") > 0
+        assert polled.js("window.vppViewer.cameraCount()") == pushed.js(
+            "window.vppViewer.cameraCount()"
+        )
+        assert pushed.errors == []
 
 
 def test_with_api_keys_the_page_asks_for_one_and_sends_it(
@@ -416,8 +477,29 @@ def test_colours_spread_over_the_plans_range_and_problems_only_pales_the_rest(
     ghost = shown[met][0]
     assert (shown[met] == ghost).all() and (shown[~met] == colours[~met]).all()
     assert not (colours == ghost).all(axis=1).any()  # a colour of its own
-    assert page.page.locator("#legend .when-problems").is_visible()
+    assert page.page.locator("#legend .when-problems").first.is_visible()
+    # each problem face has a dot in its colour (unlit: exact, unlike the shaded faces),
+    # however small, seen where nothing is in front of it
+    problems = np.flatnonzero(np.isin(arrays["state"], [1, 2, 3]))
+    marks = page.js("window.vppViewer.problemMarks()")
+    assert len(problems) > 0 and sorted(m["face"] for m in marks) == problems.tolist()
+    page.drawn()
+    image = page.canvas_rgb()
+    h, w, _ = image.shape
+    front = [m for m in marks if m["facing"] and 0 <= m["xy"][0] < w and 0 <= m["xy"][1] < h]
+    dotted = [m for m in front if _dot_at(image, m["xy"], m["rgb"])]
+    # (most of those facing the eye lie deep in the bore, behind the part: their dots hidden)
+    assert len(dotted) >= 5, (len(dotted), len(front))
+    page.js("window.vppViewer.problemsOnly(false)")
+    assert page.js("window.vppViewer.problemMarks()") == []
     assert page.errors == []
+
+
+def _dot_at(image: np.ndarray, xy: list[float], rgb: list[int]) -> bool:
+    """Whether the 3 × 3 pixels around xy hold the colour rgb (± 2 per channel, unlit)."""
+    x, y = int(xy[0]), int(xy[1])
+    patch = image[max(y - 1, 0) : y + 2, max(x - 1, 0) : x + 2].reshape(-1, 3)
+    return bool((np.abs(patch - rgb) <= 2).all(axis=1).any())
 
 
 def _summary_text(page: Page) -> None:
@@ -437,10 +519,11 @@ def _summary_text(page: Page) -> None:
 
 
 def test_the_bundle_and_the_geometry_are_gzipped_on_the_wire(api) -> None:
-    """Sent gzipped to a client that takes gzip, whole to one that does not."""
+    """Sent gzipped to a client that takes gzip, whole to one that does not; JSON answers too
+    (the plan document the page loads: /openapi.json stands for them here)."""
     client = api
     mesh = upload_sample(client)
-    for path in ("/static/viewer/viewer.js", f"/v1/meshes/{mesh}/geometry"):
+    for path in ("/static/viewer/viewer.js", f"/v1/meshes/{mesh}/geometry", "/openapi.json"):
         plain = client.get(path, headers={"Accept-Encoding": "identity"})
         packed = client.get(path, headers={"Accept-Encoding": "gzip"})
         assert plain.status_code == packed.status_code == 200

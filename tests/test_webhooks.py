@@ -29,11 +29,13 @@ class Receiver:
     def __init__(self, codes: list[int] | None = None) -> None:
         self.codes = list(codes or [])
         self.posts: list[tuple[dict[str, str], bytes]] = []
+        self.times: list[float] = []
         outer = self
 
         class Handler(BaseHTTPRequestHandler):
             def do_POST(self) -> None:  # noqa: N802
                 body = self.rfile.read(int(self.headers["content-length"]))
+                outer.times.append(time.monotonic())
                 outer.posts.append(({k.lower(): v for k, v in self.headers.items()}, body))
                 self.send_response(outer.codes.pop(0) if outer.codes else 204)
                 self.send_header("content-length", "0")
@@ -104,12 +106,6 @@ def wait_job(client: httpx.Client, job: str, pred: Any) -> dict[str, Any]:
         time.sleep(0.1)
 
 
-@pytest.mark.xfail(
-    reason="known gap: retries after a failed delivery wait for RQ's scheduler, which the "
-    "workers no longer run (its forked process outlived a SIGKILLed worker and plans stopped "
-    "resuming, tests/test_faults.py); moving due retries at each sweep is not yet reliable",
-    strict=True,
-)
 def test_terminal_event_is_signed_retried_and_recorded(
     private_ok: dict[str, str], start_workers: Any
 ) -> None:
@@ -122,6 +118,8 @@ def test_terminal_event_is_signed_retried_and_recorded(
         job = r.json()["id"]
         start_workers(1)
         hook.wait(2)
+        # the retry waits out its backoff (1 s), then the next sweep (every 1 s) enqueues it
+        assert 1.0 <= hook.times[1] - hook.times[0] <= 1.0 + 1 + 5, hook.times
         for headers, body in hook.posts:
             payload = verify(SECRET, headers, body)
             assert payload["type"] == "job.succeeded"

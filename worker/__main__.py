@@ -23,10 +23,9 @@ from redis import Redis  # noqa: E402
 from redis.exceptions import ConnectionError, TimeoutError  # noqa: E402
 from rq import Queue, Worker  # noqa: E402
 from rq.job import Job  # noqa: E402
-from rq.scheduler import RQScheduler  # noqa: E402
 
 import worker.jobs  # noqa: E402,F401
-from worker import logs, webhooks  # noqa: E402
+from worker import logs, scheduled, webhooks  # noqa: E402
 from worker.jobs import connect  # noqa: E402
 from worker.pool import follow_parent  # noqa: E402
 from worker.settings import Settings, get_settings  # noqa: E402
@@ -54,11 +53,12 @@ class VppWorker(Worker):
         """RQ's sweep, then the due retries of webhook deliveries back onto their queue, here in
         the worker instead of RQ's forked scheduler: a SIGKILLed worker's scheduler process
         outlived it, holding the queues' scheduler locks, and a plan whose worker was killed no
-        longer resumed from its stored chunks (tests/test_faults.py)."""
+        longer resumed from its stored chunks (tests/test_faults.py). Idle workers sweep every
+        `sweep_s` (they block on the queues for that long at most)."""
         super().run_maintenance_tasks()  # type: ignore[no-untyped-call]
-        due = RQScheduler([q.name for q in self.queues], connection=self.connection)
-        due.prepare_registries()
-        due.enqueue_scheduled_jobs()  # type: ignore[no-untyped-call]
+        moved = scheduled.enqueue_due(self.connection, self.queues)
+        if moved:
+            log.info("worker %s: %d due retries back on their queues", self.name, moved)
 
     def perform_job(self, job: Job, *args: Any) -> bool:
         """RQ's perform_job (in the work horse) with the job id on every line logged meanwhile."""

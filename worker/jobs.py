@@ -34,8 +34,9 @@ from vpp_core.mesh.part import Part
 from vpp_core.plan.cellplan import scene_occluders, setup_backend
 from vpp_core.plan.document import PlanRequest, Timings
 from vpp_core.plan.pipeline import candidates_for, check_limits, finish, grow, spent_s
+from vpp_core.plan.warm import warm
 from vpp_core.report.plots import plan_plots
-from vpp_core.report.scene import plan_scene
+from vpp_core.report.scene import plan_scene, unpack
 from vpp_core.trace.rays import RayBackend
 from vpp_core.trace.raytrace import Trace, join_traces, make_backend, trace_counts
 from worker import artifacts as art
@@ -87,7 +88,8 @@ class Context:
             raise RuntimeError("not running inside an RQ job")
         settings = get_settings()
         queue = Queue(job.origin, connection=job.connection)
-        return cls(settings, open_store(settings.store_url), job, queue, _Meta(job))
+        store = open_store(settings.store_url, job.connection)
+        return cls(settings, store, job, queue, _Meta(job))
 
 
 def plan_job(plan: str) -> dict[str, Any]:
@@ -121,8 +123,9 @@ def _plan(ctx: Context, plan: str) -> dict[str, Any]:
     cell = art.get_cell(ctx.store, request.setup)
     trace_id = art.trace_id(mesh_id, request)
     timings = Timings()
-    views, info, trace, reused = _trace(ctx, part, request, trace_id, timings, cell)
     progress = stage_progress(ctx.meta)
+    warm(request.backend, progress)  # stage `compiling` while numba compiles (fresh install)
+    views, info, trace, reused = _trace(ctx, part, request, trace_id, timings, cell)
     progress("adaptive", 0, 1)
     start = time.perf_counter()
     views, info, trace, rounds = grow(
@@ -150,12 +153,15 @@ def _plan(ctx: Context, plan: str) -> dict[str, Any]:
         cell=cell,
     )
     ctx.meta.update(force=True, stage="plots")
-    for name, png in plan_plots(part, doc).items():  # before the document: it means done
+    scene = plan_scene(part, doc, trace.counts)
+    faces = unpack(scene)[1]  # the part in cameras.png wears the viewer's r* colours
+    pngs = plan_plots(part, doc, faces=(faces["state"], faces["resolution_mm"]))
+    for name, png in pngs.items():  # before the document: it means done
         ctx.store.put(art.plot_key(f"plans/{plan}", name), png)
     if doc.candidate_info.added:  # R of the grown pool, for the scene and re-plans
         pool = art.pool_trace_id(mesh_id, request, doc.candidates)
         ctx.store.put(art.counts_key(pool), art.trace_bytes(trace))
-    art.put_scene(ctx.store, plan, plan_scene(part, doc, trace.counts))
+    art.put_scene(ctx.store, plan, scene)
     art.put_plan(ctx.store, plan, doc)
     ctx.meta.update(force=True, stage="done")
     return {"plan": plan, "viewpoints": len(doc.viewpoints), "trace": trace_id}

@@ -6,7 +6,8 @@ depths read at scrape time, into the Prometheus text format with prometheus-clie
 Metrics (all `vpp_`): jobs_submitted_total{kind}, jobs_finished_total{kind,status},
 job_duration_seconds{kind,status} (histogram), stage_duration_seconds{stage} (histogram, per
 finished plan), rays_traced_total, solver_runs_total{status}, solver_gap (histogram),
-queue_depth{queue}, jobs_running.
+queue_depth{queue}, jobs_running, store_errors_total{operation} (put, get, exists, ping: every
+operation shown, at 0 until one fails; counted by worker.store.CountedStore).
 """
 
 from __future__ import annotations
@@ -39,7 +40,10 @@ HELP = {
     "rays_traced_total": "Rays cast by finished plans (reused traces not counted again)",
     "solver_runs_total": "Set-cover solves of finished plans by solver status",
     "solver_gap": "Relative MIP gap of finished plans' solves",
+    "store_errors_total": "Artifact store operations that failed (disk full, object store down)",
 }
+STORE_OPERATIONS = ("put", "get", "exists", "ping")
+"""The store's operations: each has its `store_errors_total` series from the start."""
 
 
 def _labels_key(name: str, labels: Mapping[str, str], *extra: str) -> str:
@@ -105,7 +109,10 @@ class RedisCollector:
 
     def _counters(self) -> Iterable[Any]:
         families: dict[str, CounterMetricFamily] = {}
-        for (name, labels), value in sorted(_read(self.conn, COUNTERS).items()):
+        counts = _read(self.conn, COUNTERS)
+        for op in STORE_OPERATIONS:  # a failure rate needs its zero before the first failure
+            counts.setdefault(("store_errors_total", (("operation", op),)), 0.0)
+        for (name, labels), value in sorted(counts.items()):
             keys = [k for k, _ in labels]
             family = families.setdefault(
                 name, CounterMetricFamily(f"vpp_{name}", HELP.get(name, name), labels=keys)

@@ -61,6 +61,38 @@ def start_worker(
     )
 
 
+WARM_NICE = 10
+"""Niceness of the warming process: plans and requests first."""
+
+
+def start_warming() -> subprocess.Popen[bytes]:
+    """`warm_main` in a process of its own: numba's cache is filled while the service starts
+    (not delaying readiness), so the first plan on a fresh install finds its kernels compiled or
+    compiles them (stage `compiling`) alongside. It ends with this process, like a worker."""
+    return subprocess.Popen(
+        [sys.executable, "-c", "from worker.pool import warm_main; warm_main()"],
+        env={**worker_env(1, 1), PARENT_ENV: str(os.getpid())},
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+
+
+def warm_main() -> None:
+    """The warming process: `python -m vpp_core.plan.warm`, niced, following its parent."""
+    follow_parent()
+    os.nice(WARM_NICE)
+    from vpp_core.plan.warm import main
+
+    raise SystemExit(main([]))
+
+
+def stop_warming(proc: subprocess.Popen[bytes]) -> None:
+    """End a warming process that is still running (its kernels are cached as each is done)."""
+    if proc.poll() is None:
+        proc.kill()
+        proc.wait()
+
+
 class WorkerPool:
     """`count` worker processes kept running: one that ends before `stop` is started again
     (under a new name) at the next `check`, unless it exits 0 in burst mode (its queue done).

@@ -3,18 +3,25 @@
 Keys are slash-separated relative paths such as `meshes/<sha256>.npz`. A put is atomic: a reader
 sees the whole old value or the whole new one, never a part. Backends: the filesystem
 (`file:///abs/dir` or a plain path), an S3-compatible object store (`s3://bucket/prefix`,
-see `worker.s3store`) and memory (`memory://`, for tests).
+see `worker.s3store`) and memory (`memory://`, for tests). Opened with a Redis connection, a
+store counts its failures (`vpp_store_errors_total{operation}`, worker.metrics): `CountedStore`.
 """
 
 from __future__ import annotations
 
 import os
 import tempfile
+from collections.abc import Callable
+from contextlib import suppress
 from pathlib import Path
-from typing import Protocol
+from typing import Protocol, TypeVar
 from urllib.parse import urlparse
 
+from redis import Redis
+from redis.exceptions import RedisError
+
 from vpp_core.errors import NotFoundError, UnavailableError
+from worker import metrics
 from worker.s3store import S3Store
 from worker.storekey import check_key
 
@@ -113,13 +120,55 @@ class MemoryStore:
         return None
 
 
-def open_store(url: str) -> Store:
-    """The store at `url`: `file:///dir` or a path, `s3://bucket/prefix`, or `memory://`."""
+T = TypeVar("T")
+
+
+class CountedStore:
+    """A store whose failures are counted in Redis (`vpp_store_errors_total{operation}`: a full
+    disk, an object store down or refusing) and raised as before; a missing key is no failure,
+    and a Redis that cannot count does not hide the store's error."""
+
+    def __init__(self, inner: Store, conn: Redis) -> None:
+        self.inner, self.conn, self.url = inner, conn, inner.url
+
+    def __getattr__(self, name: str) -> object:
+        """The backend's own attributes (a FileStore's `root`, an S3Store's `endpoint_url`)."""
+        return getattr(self.inner, name)
+
+    def put(self, key: str, data: bytes) -> None:
+        self._counted("put", lambda: self.inner.put(key, data))
+
+    def get(self, key: str) -> bytes:
+        return self._counted("get", lambda: self.inner.get(key))
+
+    def exists(self, key: str) -> bool:
+        return self._counted("exists", lambda: self.inner.exists(key))
+
+    def ping(self) -> None:
+        self._counted("ping", self.inner.ping)
+
+    def _counted(self, operation: str, call: Callable[[], T]) -> T:
+        try:
+            return call()
+        except NotFoundError:
+            raise
+        except Exception:
+            with suppress(RedisError):
+                metrics.inc(self.conn, "store_errors_total", {"operation": operation})
+            raise
+
+
+def open_store(url: str, conn: Redis | None = None) -> Store:
+    """The store at `url`: `file:///dir` or a path, `s3://bucket/prefix`, or `memory://`; its
+    failures counted in the metrics when `conn` (Redis) is given."""
     parsed = urlparse(url)
+    store: Store
     if parsed.scheme in ("", "file"):
-        return FileStore(parsed.path if parsed.scheme else url)
-    if parsed.scheme == "s3":
-        return S3Store(url)
-    if parsed.scheme == "memory":
-        return MemoryStore()
-    raise ValueError(f"unsupported store URL {url!r}: use file:///dir, s3://bucket/prefix")
+        store = FileStore(parsed.path if parsed.scheme else url)
+    elif parsed.scheme == "s3":
+        store = S3Store(url)
+    elif parsed.scheme == "memory":
+        store = MemoryStore()
+    else:
+        raise ValueError(f"unsupported store URL {url!r}: use file:///dir, s3://bucket/prefix")
+    return CountedStore(store, conn) if conn is not None else store

@@ -1,6 +1,6 @@
 // The plan viewer page: /v1/plans/{id}/view. Loads the plan document, the mesh geometry and
 // the plan's per-face results, draws them, and exposes `window.vppViewer` for tests and scripts.
-import { AuthError, getBinary, getJson, postJson, setKey, base } from './api.js';
+import { AuthError, HttpError, followEvents, getBinary, getJson, postJson, setKey, base } from './api.js';
 import { unpack } from './packed.js';
 import { DESCRIPTIONS, FIXED, GHOST, faceColours, fitScale, gradient, position } from './palette.js';
 import { PlanScene } from './scene3d.js';
@@ -34,27 +34,55 @@ const TIPS = {
   uncoverable: 'Faces that no candidate sees: no plan can cover them.',
 };
 
-/** Wait for the plan's job while it runs; the plan document once it has succeeded. */
-async function planDocument(plan) {
-  for (;;) {
-    const job = await getJson(`/v1/jobs/${plan}`); // asked first: no 404 while it runs
-    if (job.status === 'succeeded') return getJson(`/v1/plans/${plan}`);
-    if (job.status === 'failed' || job.status === 'canceled') {
-      throw new Error(`the plan's job ${job.status}: ${job.error?.detail ?? ''}`);
-    }
-    const p = job.progress;
-    status(`Plan ${job.status}${p ? `: ${p.stage} ${p.done}/${p.total}` : ''}…`);
-    await new Promise((r) => setTimeout(r, POLL_MS));
-  }
+const TERMINAL = ['succeeded', 'failed', 'canceled'];
+const STAGE_NOTES = { compiling: ' (compiling the ray tracer once after install: about half a minute)' };
+
+function jobStatus(status, p) {
+  const note = (p && STAGE_NOTES[p.stage]) || '';
+  return `Plan ${status}${p ? `: ${p.stage} ${p.done}/${p.total}` : ''}${note}…`;
 }
 
-/** Forget the plan shown while another loads: no selection, no camera view, no old figures. */
+/** The plan document once the plan's job has succeeded; meanwhile its progress, pushed by the
+ * API (Server-Sent Events), or polled every POLL_MS where the stream fails. */
+async function planDocument(plan) {
+  let job = await getJson(`/v1/jobs/${plan}`); // asked first: no 404 while it runs
+  api.polls = 1;
+  status(jobStatus(job.status, job.progress));
+  if (!TERMINAL.includes(job.status)) {
+    try {
+      let current = job.status;
+      job = await followEvents(`/v1/jobs/${plan}/events`, (name, data) => {
+        api.pushed += 1;
+        if (name === 'status') current = data.status;
+        if (name === 'progress') status(jobStatus(current, data));
+      });
+    } catch (e) {
+      if (e instanceof AuthError || (e instanceof HttpError && e.status === 404)) throw e;
+      console.info('job events unavailable, polling instead:', e.message || e);
+      api.polling = true;
+    }
+  }
+  while (!TERMINAL.includes(job.status)) {
+    await new Promise((r) => setTimeout(r, POLL_MS));
+    job = await getJson(`/v1/jobs/${plan}`);
+    api.polls += 1;
+    status(jobStatus(job.status, job.progress));
+  }
+  if (job.status === 'succeeded') return getJson(`/v1/plans/${plan}`);
+  throw new Error(`the plan's job ${job.status}: ${job.error?.detail ?? ''}`);
+}
+
+/** Forget the plan shown while another loads: no selection, no camera view, no old figures,
+ * cameras, colours or slider range (the part stays, grey). */
 function forget() {
   if (!state.doc) return;
   select(null);
   state.doc = null;
-  for (const id of ['metrics', 'legend']) $(id).innerHTML = '';
+  for (const id of ['metrics', 'legend', 'camera-info']) $(id).innerHTML = '';
   $('summary').classList.add('pending');
+  view.clearPlan();
+  stepper(0);
+  $('step-label').textContent = '– / 0';
 }
 
 async function load(plan) {
@@ -133,6 +161,7 @@ function legend(doc, scene, scale) {
       ${['uncovered', 'uncoverable', 'excluded'].map((k, i) => `<li class="state">${swatch(FIXED[k])}${DESCRIPTIONS[k]}: ${counts[i + 2]}${NB}faces</li>`).join('')}
       <li class="when-selected">${swatch([225, 232, 238])}faded: not seen by the selected viewpoint</li>
       <li class="when-problems">${swatch(GHOST)}pale: meets r̄ (problems only)</li>
+      <li class="when-problems"><span class="dot"></span>a dot on each face that misses r̄, is uncovered or uncoverable, however small</li>
     </ul>`;
   api.stateCounts = counts;
   api.scale = scale;
@@ -163,6 +192,9 @@ async function switchTo(related) {
   api.ready = false;
   for (const b of $('formulations').children) {
     b.classList.toggle('active', b.dataset.formulation === related.formulation);
+    if (b.dataset.formulation === related.formulation && !related.available) {
+      b.textContent = `${related.formulation} (computing…)`;
+    }
   }
   try {
     if (!related.available) await postJson('/v1/plans', related.request);
@@ -289,6 +321,10 @@ async function run(plan) {
 // for tests and scripts: the page's state and a few actions
 const api = {
   ready: false,
+  /** GET /v1/jobs/{id} made while waiting for the plan, events pushed, whether it fell back. */
+  polls: 0,
+  pushed: 0,
+  polling: false,
   get plan() { return state.plan; },
   get doc() { return state.doc; },
   cameraCount: () => view.labels?.length ?? 0,
@@ -308,6 +344,7 @@ const api = {
   setShading: (on) => { $('shading').checked = on; view.setShading(on); },
   show: (what, on) => view.show(what, on),
   drawn: () => view.drawn(),
+  problemMarks: () => view.problemMarks(),
   /** Mean milliseconds per frame over a full turn of the eye in n drawn steps (benchmarks). */
   orbit: async (n = 60) => {
     const t0 = performance.now();

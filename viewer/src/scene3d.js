@@ -9,6 +9,7 @@ import { GHOST } from './palette.js';
 const FRUSTUM = 0x1f6fb2;
 const SELECTED = 0xe8590c;
 const TOUR = 0x7048e8;
+const PENDING = 200; // the part's grey while a plan loads (no colour claims anything)
 const DIM = 255; // faces the selected camera does not see fade towards white, keeping a tint
 const DIM_MIX = 0.72;
 const GLYPH = 0.25; // a camera glyph is a pyramid this many part diagonals deep (≤ near_mm)
@@ -18,6 +19,9 @@ const MOVING_SCALE = 0.5; // while the eye moves, the canvas draws at this share
 const SETTLE_MS = 200; // ... and at all of them this long after it stops
 const AIM_FACES = 2000; // faces per camera searched for its aim point (evenly spread)
 const PIN_PX = 9; // camera pins, drawn and picked in screen pixels
+const MARK_PX = 7; // under "problems only", a dot of this size marks each problem face ...
+const MARK_LIFT = 0.002; // ... lifted off it by this share of the part's diagonal (no z-fight)
+const PROBLEMS = [1, 2, 3]; // the states marked: unmet, uncovered (left out), uncoverable
 const PICK_PX = 8;
 const LINEAR = Float32Array.from({ length: 256 }, (_, i) => {
   const c = i / 255; // sRGB byte → linear, so that the sRGB output shows the byte again
@@ -93,6 +97,16 @@ export class PlanScene {
     this.paint();
   }
 
+  /** No plan drawn (while another one loads): the part in one neutral grey, no cameras, tour
+   * or numbers, nothing selected. */
+  clearPlan() {
+    if (!this.part || !this.sensor) return;
+    const grey = new Uint8Array(3 * this.nFaces).fill(PENDING);
+    this.states = null;
+    this.setPlan(grey, [], this.sensor, new Uint32Array(1), new Uint32Array(0));
+    this.render();
+  }
+
   /** Where viewpoint k looks on the part: the centre of the face it sees nearest its central
    * ray, among up to AIM_FACES of them (the point at the working distance along its gaze when
    * it sees none). */
@@ -153,7 +167,53 @@ export class PlanScene {
     }
     this.shown = shown;
     attr.needsUpdate = true;
+    this.markProblems(shown);
     this.render();
+  }
+
+  /** Under "problems only", a dot in its colour on each problem face, so that faces smaller
+   * than a pixel still show where they are; hidden where the part is in front of them. */
+  markProblems(shown) {
+    if (this.marks) { this.scene.remove(this.marks); this.marks.geometry.dispose(); this.marks = null; }
+    this.markFaces = [];
+    if (!this.problems || !this.states) return;
+    const faces = [];
+    for (let i = 0; i < this.nFaces; i++) if (PROBLEMS.includes(this.states[i])) faces.push(i);
+    const normals = this.part.geometry.getAttribute('normal').array;
+    const lift = MARK_LIFT * this.part.geometry.boundingBox.getSize(new THREE.Vector3()).length();
+    const pos = new Float32Array(3 * faces.length);
+    const col = new Float32Array(3 * faces.length);
+    faces.forEach((f, j) => {
+      for (let c = 0; c < 3; c++) {
+        pos[3 * j + c] = this.centroids[3 * f + c] + lift * normals[9 * f + c];
+        col[3 * j + c] = LINEAR[shown[3 * f + c]];
+      }
+    });
+    const geometry = new THREE.BufferGeometry();
+    geometry.setAttribute('position', new THREE.BufferAttribute(pos, 3));
+    geometry.setAttribute('color', new THREE.BufferAttribute(col, 3));
+    this.marks = new THREE.Points(geometry, new THREE.PointsMaterial(
+      { size: MARK_PX, sizeAttenuation: false, vertexColors: true }));
+    this.markFaces = faces;
+    this.scene.add(this.marks);
+  }
+
+  /** The problem marks: face, canvas CSS px [x, y], sRGB colour, and whether its face turns
+   * towards the eye. */
+  problemMarks() {
+    if (!this.marks) return [];
+    const { width, height } = this.size();
+    const pos = this.marks.geometry.getAttribute('position');
+    const normals = this.part.geometry.getAttribute('normal').array;
+    const eye = this.camera.position;
+    return this.markFaces.map((f, j) => {
+      const w = new THREE.Vector3().fromBufferAttribute(pos, j);
+      const n = new THREE.Vector3(normals[9 * f], normals[9 * f + 1], normals[9 * f + 2]);
+      const facing = n.dot(eye.clone().sub(w)) > 0;
+      const p = w.clone().project(this.camera);
+      const xy = [((p.x + 1) / 2) * width, ((1 - p.y) / 2) * height];
+      return { face: f, xy, rgb: Array.from(this.shown.subarray(3 * f, 3 * f + 3)), facing };
+    });
   }
 
   /** Frustum corners (8 world points, near then far) of viewpoint k. */

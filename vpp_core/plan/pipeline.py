@@ -46,6 +46,7 @@ from vpp_core.plan.document import (
 from vpp_core.plan.metrics import evaluate
 from vpp_core.plan.objective import by_objective
 from vpp_core.plan.tour import path_length
+from vpp_core.plan.warm import warm
 from vpp_core.trace.rays import RayBackend
 from vpp_core.trace.raytrace import Trace, trace_counts
 
@@ -210,6 +211,7 @@ def plan(
     cell = cell_of(request, cell)
     backend = backend or setup_backend(part, request, cell)
     check_request(request, limits, cell)
+    warm(request.backend, progress)  # stage `compiling` while numba compiles, on a fresh install
     with clock.stage("candidates"):
         views, info = candidates_for(part, request, backend, cell)
     check_limits(len(views), request.sensor.n_pixels, limits)

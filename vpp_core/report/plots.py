@@ -42,6 +42,16 @@ MAX_DRAWN_FACES = 20_000
 """The 3D view draws a decimated copy of bigger parts (matplotlib draws each polygon)."""
 
 
+SCALE_PERCENTILE = 0.02
+"""The r* scale's ends: this share of the met (unmet) faces lies beyond each (palette.js)."""
+SCALE_SPAN = (1.25, 100.0)
+"""Least and most ratio of r* each half of the scale covers (palette.js MIN_SPAN, MAX_SPAN)."""
+STATE_CODES = ("met", "unmet", "uncovered", "uncoverable", "excluded")
+"""Face states by their code in the plan scene (vpp_core.report.scene)."""
+FaceColours = tuple[np.ndarray, np.ndarray] | None
+"""(state, resolution_mm) per face of the part (vpp_core.report.scene), or None: grey."""
+
+
 def _png(fig: Figure) -> bytes:
     """The figure as PNG bytes."""
     FigureCanvasAgg(fig)
@@ -61,6 +71,53 @@ def ramp_colour(stops: Sequence[Sequence[int]], t: float) -> tuple[float, float,
     i = min(int(x), len(stops) - 2)
     a, b = np.asarray(stops[i], float), np.asarray(stops[i + 1], float)
     return rgb(np.round(a + (b - a) * (x - i)).astype(int).tolist())
+
+
+def _quantile(values: np.ndarray, q: float) -> float:
+    """palette.js `quantile`: the value at floor(q n) of the float32 values sorted."""
+    ordered = np.sort(values.astype(np.float32))
+    return float(ordered[min(len(ordered) - 1, int(np.floor(q * len(ordered))))])
+
+
+def face_colours(state: np.ndarray, resolution_mm: np.ndarray, target_mm: float) -> np.ndarray:
+    """(M, 3) uint8 sRGB colour of each face as the viewer draws it (palette.js `fitScale` and
+    `faceColours`): met faces on the met ramp from the plan's finest r* (2nd percentile) to r̄,
+    unmet ones on the unmet ramp from r̄ to their 98th percentile, log within each half; the
+    other states in their fixed colours."""
+    state = np.asarray(state)
+    r = np.asarray(resolution_mm, dtype=np.float64)
+    met, unmet = r[state == 0], r[(state == 1) & np.isfinite(r)]
+    lo_span, hi_span = SCALE_SPAN
+    lo, hi = target_mm / 2, 2 * target_mm  # without met (unmet) faces, as palette.js
+    if len(met):
+        lo = target_mm / np.clip(target_mm / _quantile(met, SCALE_PERCENTILE), lo_span, hi_span)
+    if len(unmet):
+        hi = target_mm * np.clip(
+            _quantile(unmet, 1 - SCALE_PERCENTILE) / target_mm, lo_span, hi_span
+        )
+    with np.errstate(divide="ignore", invalid="ignore"):
+        below = 0.5 * (1 - np.log(target_mm / np.maximum(r, 1e-12)) / np.log(target_mm / lo))
+        above = 0.5 * (1 + np.log(r / target_mm) / np.log(hi / target_mm))
+    t = np.clip(np.where(r <= target_mm, below, above), 0.0, 1.0)
+    t = np.nan_to_num(t, nan=1.0)
+    out = np.zeros((len(state), 3), np.uint8)
+    for code, name in enumerate(STATE_CODES):
+        pick = state == code
+        if name == "met":
+            out[pick] = _ramp(PALETTE["met"], 2 * t[pick])
+        elif name == "unmet":
+            out[pick] = _ramp(PALETTE["unmet"], 2 * t[pick] - 1)
+        else:
+            out[pick] = PALETTE[name]
+    return out
+
+
+def _ramp(stops: Sequence[Sequence[int]], t: np.ndarray) -> np.ndarray:
+    """palette.js `ramp` on an array: sRGB bytes at t in [0, 1] along piecewise-linear stops."""
+    x = np.clip(t, 0.0, 1.0) * (len(stops) - 1)
+    knots = np.arange(len(stops))
+    channels = [np.interp(x, knots, [c[k] for c in stops]) for k in range(3)]
+    return np.floor(np.stack(channels, axis=1) + 0.5).astype(np.uint8)
 
 
 def bin_colours(edges: np.ndarray, target_mm: float) -> list[tuple[float, float, float]]:
@@ -227,10 +284,16 @@ def neighbours_png(stats: CloudStats, title: str = "") -> bytes:
     return _png(fig)
 
 
-def cameras_png(part: Part, doc: PlanDocument) -> bytes:
+def cameras_png(part: Part, doc: PlanDocument, faces: FaceColours = None) -> bytes:
+    """`cameras_figure` as PNG bytes."""
+    return _png(cameras_figure(part, doc, faces))
+
+
+def cameras_figure(part: Part, doc: PlanDocument, faces: FaceColours = None) -> Figure:
     """Left: the part and the selected cameras' depth-of-field frusta, numbered in visiting
     order, with the tour. Right: close-up of the part, each camera's gaze and the point where
-    its central ray meets the part, numbered."""
+    its central ray meets the part, numbered. With `faces` the part wears the viewer's r*
+    colours (a light shading them), else grey."""
     fig = Figure(figsize=(13, 6.2))
     overview = fig.add_subplot(1, 2, 1, projection="3d")
     close = fig.add_subplot(1, 2, 2, projection="3d")
@@ -241,8 +304,11 @@ def cameras_png(part: Part, doc: PlanDocument) -> bytes:
     positions = np.array([vp.position for vp in doc.viewpoints]).reshape(-1, 3)
     gazes = np.array([vp.gaze for vp in doc.viewpoints]).reshape(-1, 3)
     aims = _aim_points(mesh, positions, gazes, doc.sensor.working_distance)
+    colours = None
+    if faces is not None:
+        colours = face_colours(*faces, doc.target.resolution_mm)[_original_faces(part, mesh)]
     for ax in (overview, close):
-        _draw_part(ax, mesh)
+        _draw_part(ax, mesh, colours)
     _draw_lines(overview, frusta, "#1f6fb2", 0.5)
     if len(positions):
         overview.plot(*positions.T, color="#7048e8", lw=1.2, marker="o", ms=3, label="tour")
@@ -261,8 +327,22 @@ def cameras_png(part: Part, doc: PlanDocument) -> bytes:
         f"{len(doc.viewpoints)} viewpoints ({doc.target.formulation}, r̄ = "
         f"{doc.target.resolution_mm:g} mm): depth-of-field frusta, visiting order"
     )
-    close.set_title("close-up: gaze and aim point of each viewpoint")
-    return _png(fig)
+    close.set_title(
+        "close-up: gaze and aim point of each viewpoint"
+        + ("\nfaces coloured by achieved resolution r* (as in the viewer)" if faces else "")
+    )
+    return fig
+
+
+def _original_faces(part: Part, mesh: Any) -> np.ndarray:
+    """For each face of `mesh` (the part or a decimated copy) the part's face it stands for:
+    the one whose centroid is nearest its own."""
+    if len(mesh.faces) == part.n_faces:
+        return np.arange(part.n_faces)
+    from scipy.spatial import cKDTree
+
+    centroids = part.vertices[part.faces].mean(axis=1)
+    return np.asarray(cKDTree(centroids).query(mesh.triangles_center)[1])
 
 
 def _frusta(doc: PlanDocument) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -339,12 +419,16 @@ def _numbers(fig: Figure, ax: Any, points: np.ndarray) -> None:
         )
 
 
-def _draw_part(ax: Any, mesh: Any) -> None:
-    """The mesh, grey with a fixed directional light."""
+def _draw_part(ax: Any, mesh: Any, colours: np.ndarray | None = None) -> None:
+    """The mesh with a fixed directional light: grey, or `colours` (M, 3) sRGB bytes per face
+    (lit more gently, so that the colours stay readable)."""
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
     light = np.abs(mesh.face_normals @ np.array([0.3, 0.4, 0.87]))
-    shade = (0.35 + 0.6 * light)[:, None] * np.array([0.75, 0.75, 0.78])
+    if colours is None:
+        shade = (0.35 + 0.6 * light)[:, None] * np.array([0.75, 0.75, 0.78])
+    else:
+        shade = (0.6 + 0.4 * light)[:, None] * (colours / 255.0)
     ax.add_collection3d(Poly3DCollection(mesh.triangles, facecolors=shade, linewidths=0))
 
 
@@ -381,15 +465,18 @@ def _title(what: str, study: Study, name: str | None = None) -> str:
     return f"{what}: {name or 'mesh ' + study.mesh.id[:12]} ({study.mesh.faces:,} faces)"
 
 
-def plan_plots(part: Part, doc: PlanDocument, cloud: CloudStats | None = None) -> dict[str, bytes]:
-    """A plan's pictures by file name: histogram, cameras and, with a point cloud, neighbours."""
+def plan_plots(
+    part: Part, doc: PlanDocument, cloud: CloudStats | None = None, faces: FaceColours = None
+) -> dict[str, bytes]:
+    """A plan's pictures by file name: histogram, cameras (its part coloured by r* given the
+    faces' state and r*) and, with a point cloud, neighbours."""
     pngs = {
         "histogram.png": histogram_png(
             [(doc.target.formulation, doc.metrics.resolution.histogram)],
             doc.target.resolution_mm,
             f"resolution per surface element: {len(doc.viewpoints)} viewpoints",
         ),
-        "cameras.png": cameras_png(part, doc),
+        "cameras.png": cameras_png(part, doc, faces),
     }
     if cloud is not None:
         pngs["neighbours.png"] = neighbours_png(cloud)

@@ -144,6 +144,36 @@ def plan_scene(part: Part, doc: PlanDocument, counts: sp.sparray) -> bytes:
     )
 
 
+def selected_face_results(part: Part, doc: PlanDocument, threads: int | None = None) -> FaceResults:
+    """The per-face results of `doc` on `part` without the candidates' R: its selected
+    viewpoints traced again (the plan's sensor and backend), uncoverable faces from the
+    document's ids. What `plan_scene` gives from the whole R (for the CLI's plots)."""
+    from vpp_core.camera.pose import make_viewpoints
+    from vpp_core.trace.raytrace import make_backend, trace_counts
+
+    vps = doc.viewpoints
+    views = make_viewpoints(
+        np.array([v.position for v in vps]).reshape(-1, 3),
+        np.array([v.gaze for v in vps]).reshape(-1, 3),
+        np.array([v.up for v in vps]).reshape(-1, 3),
+    )
+    backend = make_backend(part, doc.rays.backend) if len(vps) else None
+    counts = (
+        trace_counts(part, doc.sensor, views, backend=backend, threads=threads).counts
+        if len(vps)
+        else sp.csc_array((part.n_faces, 0), dtype=np.int32)
+    )
+    results = face_results(
+        counts, part.areas, part.counted, np.arange(len(vps)), doc.target.resolution_mm
+    )
+    state = results.state.copy()
+    state[state == UNCOVERABLE] = UNCOVERED  # unseen by the selection: R of the rest unknown
+    ids = np.asarray(doc.uncoverable.ids, dtype=np.int64)
+    state[ids[part.counted[ids]]] = UNCOVERABLE
+    state[~part.counted] = EXCLUDED
+    return FaceResults(results.resolution_mm, state, results.view_offsets, results.view_faces)
+
+
 def geometry_scene(part: Part) -> bytes:
     """The packed geometry of `part` (vertices in mm, faces) with its id and bounds."""
     return pack(geometry_arrays(part), mesh_id=part.id, bounds_mm=part.bounds.tolist())

@@ -1,0 +1,75 @@
+"""The `compiling` stage: numba compiling the ray tracer's kernels on a fresh install is said,
+not shown as a trace stuck at 0 (vpp_core.plan.warm)."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from tests.conftest import plate_part
+from vpp_core.plan import pipeline
+from vpp_core.plan import warm as warm_module
+from vpp_core.plan.document import CandidateGenerator, PlanRequest
+
+ROOT = Path(__file__).resolve().parent.parent
+WARM = """
+import json, sys
+from vpp_core.plan.warm import warm
+seen = []
+seconds = warm("packets", lambda *stage: seen.append(stage))
+print(json.dumps({"seen": seen, "seconds": seconds}))
+"""
+
+
+def warm_in_subprocess(cache: Path) -> dict[str, Any]:
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(cache), "PYTHONPATH": str(ROOT)}
+    out = subprocess.run(
+        [sys.executable, "-c", WARM], env=env, capture_output=True, text=True, timeout=300
+    )
+    assert out.returncode == 0, out.stderr
+    return dict(json.loads(out.stdout.splitlines()[-1]))
+
+
+@pytest.mark.slow
+def test_a_fresh_cache_says_compiling_and_the_next_process_does_not(tmp_path: Path) -> None:
+    """With an empty numba cache the kernels compile (seconds): `compiling` 0/1 then 1/1; a
+    second process finds them in the cache and says nothing. The packets backend: the cheapest
+    to compile of those with kernels."""
+    first = warm_in_subprocess(tmp_path / "numba")
+    assert first["seen"] == [["compiling", 0, 1], ["compiling", 1, 1]], first
+    assert first["seconds"] > warm_module.NOTICE_S
+    assert any((tmp_path / "numba").rglob("*.nbi"))  # numba's cache index, written
+    second = warm_in_subprocess(tmp_path / "numba")
+    assert second["seen"] == [] and second["seconds"] < warm_module.NOTICE_S, second
+
+
+class Stop(Exception):
+    pass
+
+
+def test_a_plan_says_compiling_before_its_candidates(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The pipeline warms the kernels before its first stage and passes the stage on (here made
+    slow by a notice threshold of 0 s); a process that has warmed them says nothing more."""
+    monkeypatch.setattr(warm_module, "NOTICE_S", 0.0)
+    monkeypatch.setattr(warm_module, "_warmed", set())
+    seen: list[tuple[str, int, int]] = []
+
+    def candidates(*args: Any) -> Any:
+        raise Stop  # the stages after this one are not the point
+
+    monkeypatch.setattr(pipeline, "candidates_for", candidates)
+    part = plate_part()
+    request = PlanRequest(candidates=CandidateGenerator(count=4))
+    with pytest.raises(Stop):
+        pipeline.plan(part, request, progress=lambda *s: seen.append(s))
+    assert seen[:3] == [("compiling", 0, 1), ("compiling", 1, 1), ("candidates", 0, 1)], seen
+    seen.clear()
+    with pytest.raises(Stop):
+        pipeline.plan(part, request, progress=lambda *s: seen.append(s))
+    assert seen == [("candidates", 0, 1)]

@@ -199,3 +199,22 @@ def test_the_time_limit_is_the_whole_plans_budget(monkeypatch):
     grown = PlanRequest(**{**request.model_dump(), "candidates": {"count": 30, "seed": 2}})
     assert pipeline.plan(part, grown).adaptive  # rounds when there is time
     assert not pipeline.plan(part, grown, load_s=budget * pipeline.ADAPT_SHARE).adaptive
+
+
+def test_a_patch_is_one_connected_piece_of_surface():
+    """Two coplanar 3 × 3 mm squares 1 mm apart face the same way within one 10 mm patch: by
+    place and normal alone they share a row (the outer face and a hole's floor would); given
+    the corners, each is its own patch, and a connected square stays one."""
+    square = trimesh.creation.box([3, 3, 0.01])
+    top = square.faces[square.face_normals[:, 2] > 0.9]
+    vertices = np.vstack([square.vertices, square.vertices + [4.0, 0, 0]])
+    faces = np.vstack([top, top + len(square.vertices)])
+    part = part_from_arrays(vertices, faces)
+    centres = part.vertices[part.faces].mean(axis=1)
+    args = (centres, part.normals, part.areas, part.counted, 10.0)
+    assert make_patches(*args).count == 1
+    split = make_patches(*args, corners=part.faces)
+    assert split.count == 2
+    left = centres[:, 0] < 2.5
+    assert len(np.unique(split.of_face[left])) == 1 and len(np.unique(split.of_face[~left])) == 1
+    assert split.of_face[left][0] != split.of_face[~left][0]

@@ -13,12 +13,16 @@ stay few enough for the cover to be solved well (docs/quality.md measures 5 r̄ 
 Small parts get at least MIN_PATCHES patches (not below MIN_PATCH_TARGETS · r̄ across), large
 ones at most MAX_PATCHES.
 
-Grouping: each face's normal is smoothed over the faces within half an edge that face the
-same side (area-weighted, SMOOTH_PASSES times), so that a scan's noisy normals do not
-scatter a smooth surface; the faces of each normal bin (the nearest of the 26 directions of
-a cube's faces, edges and corners, so opposite sides of a thin wall never share a patch) get
-seeds at least SEED_SPACING · `edge_mm` apart (largest faces first), and each face joins its
-bin's nearest seed. A face larger than a patch is a patch of its own.
+Grouping: each face's normal is smoothed over the faces within SMOOTH_TARGETS · r̄ (not the
+patch's size: a small hole's wall must keep its own direction) that face the same side
+(area-weighted, SMOOTH_PASSES times), so that a scan's noisy normals do not scatter a smooth
+surface; the faces of each normal bin (the nearest of the 26 directions of a cube's faces,
+edges and corners, so opposite sides of a thin wall never share a patch) get seeds at least
+SEED_SPACING · `edge_mm` apart (largest faces first), and each face joins its bin's nearest
+seed. A face larger than a patch is a patch of its own. Given the faces' corners, a patch
+is then split into its connected pieces (faces sharing a corner), so that a hole's wall or a
+pocket's floor never shares a row with the outer surface that faces the same way: each piece
+must be sampled itself.
 """
 
 from __future__ import annotations
@@ -27,12 +31,15 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from vpp_core.jit import kernel
 
 SMOOTH_NEIGHBOURS = 16
-"""Nearest faces a face's normal is smoothed over (within half a patch edge)."""
+"""Nearest faces a face's normal is smoothed over (within the smoothing radius)."""
+SMOOTH_TARGETS = 2.5
+"""Smoothing radius in target lengths r̄ (0.45 mm at 0.18 mm)."""
 SMOOTH_PASSES = 3
 """Smoothing passes: a scan's noisy normals (turbineblade.ply) need about three to group its
 smooth surface into whole patches (1 pass: 17 views, 3 passes: 11; docs/quality.md)."""
@@ -97,14 +104,23 @@ def patch_edge(resolution_mm: float, counted_area_mm2: float) -> float:
 
 
 def make_patches(
-    centres: np.ndarray, normals: np.ndarray, areas: np.ndarray, counted: np.ndarray, edge_mm: float
+    centres: np.ndarray,
+    normals: np.ndarray,
+    areas: np.ndarray,
+    counted: np.ndarray,
+    edge_mm: float,
+    smooth_mm: float | None = None,
+    corners: np.ndarray | None = None,
 ) -> Patches:
-    """Group counted faces ((M, 3) centres and unit normals, (M,) areas mm²) into patches."""
+    """Group counted faces ((M, 3) centres and unit normals, (M,) areas mm²) into patches
+    about `edge_mm` across, normals smoothed within `smooth_mm` (default half an edge), each
+    patch split into connected pieces where the faces' (M, 3) vertex ids `corners` are given."""
+    radius = edge_mm / 2 if smooth_mm is None else smooth_mm
     of_face = np.full(len(centres), -1, dtype=np.int64)
     smooth = np.zeros_like(normals)
     smooth[counted] = normals[counted]
     for _ in range(SMOOTH_PASSES):
-        smooth[counted] = smoothed(centres[counted], smooth[counted], areas[counted], edge_mm / 2)
+        smooth[counted] = smoothed(centres[counted], smooth[counted], areas[counted], radius)
     bins = np.argmax(smooth @ DIRECTIONS.T, axis=1)
     next_id = 0
     for b in np.unique(bins[counted]):
@@ -113,9 +129,27 @@ def make_patches(
         _, nearest = cKDTree(centres[faces][seeds]).query(centres[faces])
         of_face[faces] = next_id + np.asarray(nearest, dtype=np.int64)
         next_id += len(seeds)
+    if corners is not None:
+        of_face[counted] = connected_pieces(corners[counted], of_face[counted])
     used, of_face[counted] = np.unique(of_face[counted], return_inverse=True)
     patch_areas = np.bincount(of_face[counted], weights=areas[counted], minlength=len(used))
     return Patches(of_face, patch_areas, edge_mm)
+
+
+def connected_pieces(corners: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    """(K,) int64 new labels: faces (K, 3 vertex ids) of one label that share a corner,
+    directly or through other faces of that label, keep one label; other pieces get new ones."""
+    k = len(labels)
+    if k == 0:
+        return labels.astype(np.int64)
+    # faces and (vertex, label) nodes: a face joins the node of each corner with its own label
+    key = corners.reshape(-1).astype(np.int64) * (int(labels.max()) + 1) + np.repeat(labels, 3)
+    _, node = np.unique(key, return_inverse=True)
+    n_nodes = int(node.max()) + 1
+    face = np.repeat(np.arange(k), 3)
+    graph = sp.coo_array((np.ones(3 * k), (face, k + node.reshape(-1))), shape=(k + n_nodes,) * 2)
+    _, component = connected_components(graph, directed=False)
+    return np.asarray(component[:k], dtype=np.int64)
 
 
 def smoothed(

@@ -97,19 +97,31 @@ def patch_edge(resolution_mm: float, counted_area_mm2: float) -> float:
 
 
 def make_patches(
-    centres: np.ndarray, normals: np.ndarray, areas: np.ndarray, counted: np.ndarray, edge_mm: float
+    centres: np.ndarray,
+    normals: np.ndarray,
+    areas: np.ndarray,
+    counted: np.ndarray,
+    edge_mm: float,
+    groups: np.ndarray | None = None,
+    group_edges: np.ndarray | None = None,
 ) -> Patches:
-    """Group counted faces ((M, 3) centres and unit normals, (M,) areas mm²) into patches."""
+    """Group counted faces ((M, 3) centres and unit normals, (M,) areas mm²) into patches;
+    with `groups` ((M,) int, 0..G-1), faces of different groups (regions with their own target)
+    never share a patch, and group g's patches are `group_edges[g]` mm across."""
     of_face = np.full(len(centres), -1, dtype=np.int64)
     smooth = np.zeros_like(normals)
     smooth[counted] = normals[counted]
     for _ in range(SMOOTH_PASSES):
         smooth[counted] = smoothed(centres[counted], smooth[counted], areas[counted], edge_mm / 2)
     bins = np.argmax(smooth @ DIRECTIONS.T, axis=1)
+    if groups is not None:
+        bins = bins + len(DIRECTIONS) * np.asarray(groups, dtype=np.int64)
+    edges = np.full(1, edge_mm) if group_edges is None else np.asarray(group_edges)
     next_id = 0
     for b in np.unique(bins[counted]):
         faces = np.flatnonzero(counted & (bins == b))
-        seeds = _seeds(centres[faces], areas[faces], SEED_SPACING * edge_mm)
+        edge = float(edges[min(b // len(DIRECTIONS), len(edges) - 1)])
+        seeds = _seeds(centres[faces], areas[faces], SEED_SPACING * edge)
         _, nearest = cKDTree(centres[faces][seeds]).query(centres[faces])
         of_face[faces] = next_id + np.asarray(nearest, dtype=np.int64)
         next_id += len(seeds)

@@ -220,6 +220,20 @@ def _plan_options(p: argparse.ArgumentParser) -> None:
         help="camera-sample distance, mm (default profile: where a pixel is r̄/1.2, "
         "paper: the working distance)",
     )
+    p.add_argument(
+        "--regions",
+        type=Path,
+        metavar="REGIONS.json",
+        help="regions of interest with their own resolution_mm or ignore: true: a JSON list of "
+        '{"name", "faces"|"box"|"sphere"|"label", "resolution_mm"|"ignore"} (docs/cell.md)',
+    )
+    p.add_argument(
+        "--labels",
+        type=Path,
+        metavar="LABELS",
+        help="face labels for `label` regions: a JSON list or .npy array, one int per face "
+        "(default: the file's PLY face property, OBJ groups or glTF primitives)",
+    )
     _objective_options(p)
     p.add_argument("--solver", default="milp", choices=["milp", "greedy"])
     p.add_argument("--time-limit", type=float, default=60.0, help="solver time limit, s")
@@ -337,6 +351,10 @@ def run_plan(args: argparse.Namespace) -> int:
     console.print(summary(doc))
     if doc.diagnostics and doc.diagnostics.hint:
         console.print(f"[yellow]note:[/] {doc.diagnostics.hint}", highlight=False)
+    if doc.metrics.regions:
+        console.print(regions_table(doc))
+    for warning in doc.regions.warnings if doc.regions else []:
+        console.print(f"[yellow]warning:[/] {warning}", highlight=False)
     text = doc.model_dump_json(indent=1)
     if args.output:
         _write(args.output, text)
@@ -416,6 +434,24 @@ def run_study(args: argparse.Namespace) -> int:
     return 0
 
 
+def regions_table(doc: PlanDocument) -> Table:
+    """The plan's figures per region (metrics.regions)."""
+    table = Table(title="regions (each face against its own target)")
+    for head in ["region", "r̄ mm", "faces", "area mm²", "coverage area", "met area", "max met"]:
+        table.add_column(head, justify="right")
+    for r in doc.metrics.regions:
+        table.add_row(
+            r.name,
+            "ignored" if r.ignored else f"{r.resolution_mm:g}",
+            str(r.faces),
+            f"{r.area_mm2:,.1f}",
+            f"{r.coverage_area:.2%}",
+            "-" if r.ignored else f"{r.met_area:.2%}",
+            "-" if r.ignored else f"{r.max_met_area:.2%}",
+        )
+    return table
+
+
 def study_table(study: Study) -> Table:
     """The study's rows as a table."""
     t = study.timings_s
@@ -447,6 +483,7 @@ def _load(args: argparse.Namespace, settings: Settings) -> Part:
     """The mesh file of the command line as a Part, within the settings' limits."""
     data = _read(args.mesh, settings.max_upload_bytes)
     fmt = args.format or args.mesh.suffix.lstrip(".") or "stl"
+    labels = _read(args.labels, settings.max_upload_bytes) if args.labels else None
     return load_part(
         data,
         fmt,
@@ -454,6 +491,7 @@ def _load(args: argparse.Namespace, settings: Settings) -> Part:
         remesh_mm=args.remesh,
         max_face_area_mm2=args.max_face_area,
         max_faces=settings.max_faces,
+        labels=labels,
     )
 
 
@@ -533,6 +571,7 @@ def _request(args: argparse.Namespace) -> PlanRequest:
             ),
             backend=args.backend,
             setup=_read_json(args.setup) if args.setup else None,
+            regions=_read_json(args.regions) if args.regions else [],
         )
     except ValidationError as exc:
         err = exc.errors()[0]

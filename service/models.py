@@ -12,6 +12,25 @@ from vpp_core.plan.document import PlanRequest
 from vpp_core.report.studies import DEFAULT_RATIOS, DEFAULT_RESOLUTIONS
 
 
+class LabelValue(BaseModel):
+    """One label of a label set: its value, name (groups, materials), faces and area."""
+
+    label: int
+    name: str | None = None
+    faces: int
+    area_mm2: float
+
+
+class LabelsSummary(BaseModel):
+    """Face labels stored with a mesh: pass `id` as a plan's `labels_id`."""
+
+    id: str
+    mesh_id: str
+    source: str = Field(description="upload, ply:<property>, obj:groups|materials|objects, ...")
+    labelled_faces: int
+    values: list[LabelValue]
+
+
 class MeshSummary(BaseModel):
     """An uploaded mesh: content id (SHA-256 of the canonical geometry) and what it holds."""
 
@@ -23,6 +42,11 @@ class MeshSummary(BaseModel):
     bounds_mm: list[list[float]] = Field(description="[[xmin, ymin, zmin], [xmax, ymax, zmax]]")
     units: str = Field(description="units of the uploaded file; the mesh is stored in mm")
     warnings: list[str]
+    labels: LabelsSummary | None = Field(
+        None,
+        description="the face labels of this upload (uploaded, or read from the file); "
+        "None when it had none",
+    )
 
 
 class PlanSubmit(PlanRequest):

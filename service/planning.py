@@ -13,8 +13,17 @@ from redis import Redis
 from rq import Queue
 
 from service.jobmodels import Delivery
-from service.models import JobOut, MeshSummary, PlanSubmit, RelatedPlan, RelatedPlans, StudySubmit
-from vpp_core.errors import NotFoundError, TooLargeError, VppError
+from service.models import (
+    JobOut,
+    LabelsSummary,
+    MeshSummary,
+    PlanSubmit,
+    RelatedPlan,
+    RelatedPlans,
+    StudySubmit,
+)
+from vpp_core.errors import NotFoundError, RegionError, TooLargeError, VppError
+from vpp_core.mesh.part import Part
 from vpp_core.mesh.tessellate import load_part
 from vpp_core.plan.document import PlanRequest
 from vpp_core.plan.pipeline import check_request
@@ -60,6 +69,7 @@ def upload_mesh(
     units: str,
     max_face_area_mm2: float | None = None,
     remesh_mm: float | None = None,
+    labels: bytes | None = None,
 ) -> MeshSummary:
     """Check and store a mesh (remeshed at `remesh_mm` and its faces split to
     `max_face_area_mm2`, each if given); the same geometry again gives the same id and stores
@@ -72,10 +82,11 @@ def upload_mesh(
         remesh_mm=remesh_mm,
         max_face_area_mm2=max_face_area_mm2,
         max_faces=settings.max_faces,
+        labels=labels,
     )
     key = art.summary_key(part.id)
     if store.exists(key) and store.exists(art.mesh_key(part.id)):
-        return MeshSummary.model_validate_json(store.get(key))
+        return _with_labels(store, MeshSummary.model_validate_json(store.get(key)), part)
     summary = MeshSummary(
         id=part.id,
         faces=part.n_faces,
@@ -88,7 +99,57 @@ def upload_mesh(
     )
     art.put_part(store, part)
     store.put(key, summary.model_dump_json().encode())
-    return summary
+    return _with_labels(store, summary, part)
+
+
+def _with_labels(store: Store, summary: MeshSummary, part: Part) -> MeshSummary:
+    """The upload's summary with its face labels, stored under their own id (if any)."""
+    if part.labels is None:
+        return summary
+    art.put_labels(store, part)
+    return summary.model_copy(update={"labels": LabelsSummary(**art.labels_summary(part))})
+
+
+def get_labels(store: Store, mesh_id: str, labels_id: str) -> LabelsSummary:
+    """The summary of a label set of the mesh (NotFoundError when unknown or another mesh's)."""
+    content_id(mesh_id, "mesh")
+    found = LabelsSummary(**art.get_labels_summary(store, content_id(labels_id, "labels")))
+    if found.mesh_id != mesh_id:
+        raise NotFoundError(f"no labels {labels_id} for mesh {mesh_id}")
+    return found
+
+
+def check_regions(store: Store, mesh_id: str, request: PlanRequest) -> None:
+    """RegionError now, before a job, where the request's regions cannot fit the mesh: face ids
+    out of range, labels without (or not in) the label set `labels_id`, another mesh's labels."""
+    labels = None
+    if request.labels_id:
+        try:
+            labels = art.get_labels_summary(store, request.labels_id)
+        except NotFoundError:
+            raise RegionError(
+                f"labels_id {request.labels_id}: no such labels; upload them with the mesh"
+            ) from None
+        if labels["mesh_id"] != mesh_id:
+            raise RegionError(f"labels_id {request.labels_id} labels another mesh")
+    if not request.regions:
+        return
+    faces = MeshSummary.model_validate_json(store.get(art.summary_key(mesh_id))).faces
+    for r in request.regions:
+        if r.faces and max(r.faces) >= faces:
+            raise RegionError(
+                f"region {r.name!r}: face id {max(r.faces)} out of range (the mesh has {faces} "
+                f"faces, ids 0..{faces - 1})"
+            )
+        if r.label is not None and labels is None:
+            raise RegionError(
+                f"region {r.name!r} selects label {r.label!r} but the request names no labels: "
+                "pass labels_id (POST /v1/meshes answers it for labels uploaded or in the file)"
+            )
+        if r.label is not None and labels is not None:
+            known = {v["label"] for v in labels["values"]} | {v["name"] for v in labels["values"]}
+            if r.label not in known:
+                raise RegionError(f"region {r.name!r}: unknown label {r.label!r}")
 
 
 def get_mesh(store: Store, mesh_id: str) -> MeshSummary:
@@ -115,6 +176,7 @@ def submit_plan(store: Store, queue: Queue, settings: Settings, body: PlanSubmit
         raise VppError(f"mesh_id {body.mesh_id}: no such mesh; upload it with POST /v1/meshes")
     if request.setup is not None:  # its meshes exist; explicit viewpoints clear of fixtures
         check_request(request, settings.limits(), art.get_cell(store, request.setup))
+    check_regions(store, body.mesh_id, request)
     plan = art.plan_id(body.mesh_id, request)
     if needs_job(queue.connection, store, plan):
         if not store.exists(art.request_key(plan)):
@@ -128,6 +190,7 @@ def submit_study(store: Store, queue: Queue, settings: Settings, body: StudySubm
     request = PlanRequest.model_validate(body.model_dump(include=set(PlanRequest.model_fields)))
     if not store.exists(art.mesh_key(body.mesh_id)):
         raise VppError(f"mesh_id {body.mesh_id}: no such mesh; upload it with POST /v1/meshes")
+    check_regions(store, body.mesh_id, request)
     values = body.resolutions if body.kind == "resolution" else body.ratios
     check_study(body.kind, values, request, settings.limits())
     if request.setup is not None:  # its meshes exist; explicit viewpoints clear of fixtures
@@ -182,8 +245,8 @@ def stored(store: Store, key: str, what: str) -> bytes:
         raise NotFoundError(f"no {what} (not computed, or still running)") from None
 
 
-PLAN_PLOTS = ("histogram.png", "cameras.png")
-"""The plots every plan job stores."""
+PLAN_PLOTS = ("histogram.png", "cameras.png", "regions.png")
+"""The plots a plan job stores (regions.png only for a plan with regions)."""
 
 
 def plot_name(name: str, names: Sequence[str]) -> str:

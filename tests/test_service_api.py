@@ -206,7 +206,7 @@ def test_committed_openapi_matches_the_app() -> None:
         for op in path.values()
     }
     assert ops == {
-        "upload_mesh", "get_mesh", "get_mesh_ply", "get_mesh_geometry",
+        "upload_mesh", "get_mesh", "get_mesh_ply", "get_mesh_geometry", "get_labels",
         "submit_plan", "get_job", "cancel_job", "get_plan", "get_plan_plot", "get_plan_scene",
         "get_related_plans", "submit_point_cloud", "get_point_cloud", "get_point_cloud_stats",
         "get_point_cloud_plot", "submit_study", "get_study", "get_study_csv",

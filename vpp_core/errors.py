@@ -6,6 +6,7 @@ VppError                 anything the caller can fix by changing the input
 ├── ViewpointError       a viewpoint is malformed (zero gaze, up parallel to gaze, NaN)
 │                        or stands where the setup forbids it (below the floor, ...)
 ├── SetupError           the cell setup is invalid or references a mesh that cannot be read
+├── RegionError          a region does not fit the mesh (face id out of range, unknown label)
 ├── LimitError           the request exceeds a configured limit (faces, candidates, rays)
 │   └── TooLargeError    an upload exceeds the byte limit
 ├── SolverError          the set cover cannot be solved (no coverable face, infeasible model)
@@ -51,6 +52,12 @@ class SetupError(VppError):
     """The cell setup (issue 35) is invalid or one of its meshes cannot be read."""
 
     title = "Invalid setup"
+
+
+class RegionError(VppError):
+    """A region of interest does not fit the mesh (face id out of range, unknown label)."""
+
+    title = "Invalid region"
 
 
 class LimitError(VppError):

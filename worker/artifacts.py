@@ -2,6 +2,9 @@
 
 meshes/<mesh id>.npz            the checked Part (arrays + id + warnings)
 meshes/<mesh id>.json           its summary (what GET /v1/meshes/{id} answers)
+labels/<labels id>.npz|.json    face labels of a mesh (uploaded, or read from its file) and their
+                                summary; the id hashes mesh id + labels, so label sets of one
+                                geometry never clash (the mesh id stays the geometry's)
 requests/<plan id>.json         {"mesh_id", "request"}: what a plan job computes
 traces/<trace id>/views.npz     candidate poses and their CandidateInfo
 traces/<trace id>/chunks-<size>/<i>.npz  R of candidates [i·size, (i+1)·size)
@@ -34,7 +37,8 @@ from vpp_core.camera.sensor import Sensor
 from vpp_core.cell.geometry import Cell, MeshLoader, resolve
 from vpp_core.cell.setup import MeshShape, Setup
 from vpp_core.errors import NotFoundError, SetupError
-from vpp_core.mesh.part import Part
+from vpp_core.mesh.labels import FaceLabels
+from vpp_core.mesh.part import Part, with_labels
 from vpp_core.plan.document import CandidateInfo, CandidateOut, PlanDocument, PlanRequest
 from vpp_core.trace.raytrace import Trace
 from worker.store import Store
@@ -181,7 +185,77 @@ def get_part(store: Store, mesh_id: str) -> Part:
     meta = json.loads(str(z.pop("meta")))
     for a in z.values():
         a.setflags(write=False)
-    return Part(**z, id=meta["id"], warnings=tuple(meta["warnings"]))
+    return Part(
+        vertices=z["vertices"],
+        faces=z["faces"],
+        areas=z["areas"],
+        normals=z["normals"],
+        counted=z["counted"],
+        representative=z["representative"],
+        id=meta["id"],
+        warnings=tuple(meta["warnings"]),
+    )
+
+
+def labels_key(labels_id: str, ext: str = "npz") -> str:
+    return f"labels/{labels_id}.{ext}"
+
+
+def put_labels(store: Store, part: Part) -> str:
+    """Store the part's face labels (and their summary) under their content id; the id."""
+    labels = part.labels
+    assert labels is not None
+    labels_id = labels.content_id(part.id)
+    if not store.exists(labels_key(labels_id)):
+        store.put(labels_key(labels_id, "json"), json.dumps(labels_summary(part)).encode())
+        names = json.dumps({str(k): v for k, v in labels.names.items()})
+        meta = json.dumps({"mesh_id": part.id, "source": labels.source, "names": names})
+        store.put(labels_key(labels_id), _npz(values=labels.values, meta=np.array(meta)))
+    return labels_id
+
+
+def labels_summary(part: Part) -> dict[str, Any]:
+    """{id, mesh_id, source, labelled_faces, values: [{label, name, faces, area_mm2}]}."""
+    labels = part.labels
+    assert labels is not None
+    values, counts = np.unique(labels.values, return_counts=True)
+    area = {int(v): float(part.areas[labels.values == v].sum()) for v in values}
+    return {
+        "id": labels.content_id(part.id),
+        "mesh_id": part.id,
+        "source": labels.source,
+        "labelled_faces": int((labels.values >= 0).sum()),
+        "values": [
+            {
+                "label": int(v),
+                "name": labels.names.get(int(v)),
+                "faces": int(n),
+                "area_mm2": area[int(v)],
+            }
+            for v, n in zip(values, counts, strict=True)
+            if v >= 0
+        ],
+    }
+
+
+def get_labels_summary(store: Store, labels_id: str) -> dict[str, Any]:
+    """The summary put_labels stored (NotFoundError when unknown)."""
+    out: dict[str, Any] = json.loads(store.get(labels_key(labels_id, "json")))
+    return out
+
+
+def get_labels(store: Store, labels_id: str) -> FaceLabels:
+    """The stored face labels `labels_id` (NotFoundError when unknown)."""
+    z = _unnpz(store.get(labels_key(labels_id)))
+    meta = json.loads(str(z["meta"]))
+    names = {int(k): v for k, v in json.loads(meta["names"]).items()}
+    return FaceLabels(z["values"].astype(np.int64), names, meta["source"])
+
+
+def get_planned_part(store: Store, mesh_id: str, request: PlanRequest) -> Part:
+    """The stored part with the face labels the request names (request.labels_id)."""
+    part = get_part(store, mesh_id)
+    return with_labels(part, get_labels(store, request.labels_id)) if request.labels_id else part
 
 
 def put_request(store: Store, plan: str, mesh_id: str, request: PlanRequest) -> None:

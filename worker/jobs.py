@@ -119,7 +119,7 @@ def _plan(ctx: Context, plan: str) -> dict[str, Any]:
     if ctx.store.exists(art.plan_key(plan)):
         return {"plan": plan, "cached": True}
     mesh_id, request = art.get_request(ctx.store, plan)
-    part = art.get_part(ctx.store, mesh_id)
+    part = art.get_planned_part(ctx.store, mesh_id, request)
     cell = art.get_cell(ctx.store, request.setup)
     trace_id = art.trace_id(mesh_id, request)
     timings = Timings()

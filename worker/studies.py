@@ -33,7 +33,7 @@ def _study(ctx: Context, study: str) -> dict[str, Any]:
     if ctx.store.exists(art.study_key(study)):
         return {"study": study, "cached": True}
     mesh_id, request, kind, values = art.get_study_request(ctx.store, study)
-    part = art.get_part(ctx.store, mesh_id)
+    part = art.get_planned_part(ctx.store, mesh_id, request)
     run = resolution_sweep if kind == "resolution" else decimation_study
     doc = run(
         part,

@@ -10,7 +10,7 @@ from fastapi import APIRouter, File, Form, Header, Response, UploadFile
 
 from service import planning
 from service.deps import SettingsDep, StoreDep
-from service.models import MeshSummary, Problem
+from service.models import LabelsSummary, MeshSummary, Problem
 from service.routers.plans import named_forever
 from vpp_core.errors import TooLargeError
 
@@ -53,15 +53,46 @@ def upload_mesh(
             "to how it was exported (docs/cad-meshes.md); 1 for the paper camera",
         ),
     ] = None,
+    labels: Annotated[
+        UploadFile | str | None,
+        File(
+            description="region labels, one int per face of the file in its face order (-1: "
+            "none): a JSON array (file or plain field) or a .npy file; they replace labels the "
+            "file carries (PLY face property, OBJ groups, glTF primitives). The answer's "
+            "`labels.id` names them for plan requests (`labels_id`); the mesh id stays the "
+            "geometry's",
+            json_schema_extra={"format": "binary"},
+        ),
+    ] = None,
 ) -> MeshSummary:
     """Upload a mesh; the same geometry again gives the same id and stores nothing new."""
     data = read_spooled(file, settings.max_upload_bytes)
+    label_bytes = _label_bytes(labels, settings.max_upload_bytes)
     summary = planning.upload_mesh(
-        store, settings, data, file.filename, format, units, max_face_area_mm2, remesh_mm
+        store,
+        settings,
+        data,
+        file.filename,
+        format,
+        units,
+        max_face_area_mm2,
+        remesh_mm,
+        label_bytes,
     )
     response.headers["Location"] = f"/v1/meshes/{summary.id}"
     response.headers["ETag"] = f'"{summary.id}"'
     return summary
+
+
+def _label_bytes(labels: UploadFile | str | None, max_bytes: int) -> bytes | None:
+    """The `labels` part's bytes: an uploaded file, or a plain form field (a JSON array)."""
+    if labels is None or labels == "":
+        return None
+    if isinstance(labels, str):
+        if len(labels) > max_bytes:
+            raise TooLargeError(f"labels of {len(labels)} bytes exceed the limit of {max_bytes}")
+        return labels.encode()
+    return read_spooled(labels, max_bytes)
 
 
 def read_spooled(upload: UploadFile, max_bytes: int) -> bytes:
@@ -82,6 +113,16 @@ def get_mesh(mesh_id: str, store: StoreDep, response: Response) -> MeshSummary:
     summary = planning.get_mesh(store, mesh_id)
     response.headers["ETag"] = f'"{summary.id}"'
     return summary
+
+
+@router.get(
+    "/{mesh_id}/labels/{labels_id}",
+    response_model=LabelsSummary,
+    responses={404: {"model": Problem}},
+)
+def get_labels(mesh_id: str, labels_id: str, store: StoreDep) -> LabelsSummary:
+    """A label set of the mesh: where it came from and the faces and area of each label."""
+    return planning.get_labels(store, mesh_id, labels_id)
 
 
 PLY = "application/vnd.ply"

@@ -95,7 +95,8 @@ PNG: dict[int | str, dict[str, Any]] = {
 
 @router.get("/{plan_id}/plots/{name}", response_class=Response, responses=PNG)
 def get_plan_plot(plan_id: str, name: str, store: StoreDep) -> Response:
-    """A PNG plot of the plan: histogram.png (resolution per face) or cameras.png (frusta)."""
+    """A PNG plot of the plan: histogram.png (resolution per face), cameras.png (frusta) or,
+    for a plan with regions, regions.png (resolution per face, a histogram per region)."""
     planning.content_id(plan_id, "plan")
     name = planning.plot_name(name, planning.PLAN_PLOTS)
     data = planning.stored(store, art.plot_key(f"plans/{plan_id}", name), f"plot {name}")

@@ -104,8 +104,9 @@ async function load(plan) {
     state.geometry = geometry;
   }
   const a = scene.arrays;
-  const scale = fitScale(a.state, a.resolution_mm, doc.target.resolution_mm);
-  const colours = faceColours(a.state, a.resolution_mm, scale);
+  const r = judged(a, doc.target.resolution_mm);
+  const scale = fitScale(a.state, r, doc.target.resolution_mm);
+  const colours = faceColours(a.state, r, scale);
   const first = state.shown === undefined;
   Object.assign(state, { plan, doc, scene, shown: plan });
   Object.assign(view, { problems: $('problems').checked, states: a.state }); // painted once, next
@@ -123,6 +124,13 @@ async function load(plan) {
   api.ready = true;
 }
 
+// With regions each face has its own target r̄_f (scene array target_mm): its r* is shown scaled
+// to the default target, r* · r̄ / r̄_f, so that one colour scale says "meets its own target".
+function judged(a, target) {
+  if (!a.target_mm) return a.resolution_mm;
+  return a.resolution_mm.map((r, i) => (r * target) / a.target_mm[i]);
+}
+
 function summary(doc) {
   const m = doc.metrics;
   const s = doc.solver;
@@ -138,6 +146,12 @@ function summary(doc) {
     ['tour', mm(doc.tour_length_mm, 0)],
     ['mean C', fmt(m.paper.C_mean, 4)],
   ];
+  for (const g of m.regions || []) {
+    const what = g.ignored
+      ? `ignored: ${g.faces}${NB}faces, ${fmt(g.area_mm2, 1)}${NB}mm², not counted`
+      : `r̄ = ${mm(g.resolution_mm, 2)}: met ${pct(g.met_area)} of ${fmt(g.area_mm2, 1)}${NB}mm² (max ${pct(g.max_met_area)})`;
+    rows.push([`region ${g.name}`, what]);
+  }
   if (doc.partial) rows.splice(5, 0, ['partial cover', `${pct(doc.partial.covered_fraction)} of coverable area (asked ${pct(doc.partial.min_coverage)})`]);
   const th = (k) => (TIPS[k] ? `<th title="${TIPS[k]}" class="tip">${k}</th>` : `<th>${k}</th>`);
   $('metrics').innerHTML = rows.map(([k, v]) => `<tr>${th(k)}<td>${v}</td></tr>`).join('');
@@ -152,7 +166,8 @@ function legend(doc, scene, scale) {
   const ticks = [scale.lo, Math.sqrt(scale.lo * t), t, Math.sqrt(t * scale.hi), scale.hi]
     .map((x) => `<span style="left:${100 * position(x, scale)}%">${fmt(x, digits(x))}</span>`);
   const swatch = (rgb) => `<span class="swatch" style="background:rgb(${rgb.join(',')})"></span>`;
-  $('legend').innerHTML = `<h2>achieved resolution r* (mm, log scale)</h2>
+  const own = scene.arrays.target_mm ? `<p>regions: each face against its own target; r* shown as r*·r̄/r̄<sub>face</sub></p>` : '';
+  $('legend').innerHTML = `<h2>achieved resolution r* (mm, log scale)</h2>${own}
     <div class="bar" style="background:${gradient('met')} 0 0/50% 100% no-repeat, ${gradient('unmet')} 100% 0/50% 100% no-repeat">
       <div class="target" style="left:calc(50% - 1px)" title="target r̄ = ${t} mm"></div></div>
     <div class="ticks">${ticks.join('')}</div>

@@ -62,8 +62,8 @@ def density_matrix(counts: sp.sparray, areas: np.ndarray) -> sp.csr_array:
     return delta
 
 
-def meets(density: np.ndarray, target_density: float) -> np.ndarray:
-    """(M,) bool: density reaches the target (1/mm), up to MET_RTOL."""
+def meets(density: np.ndarray, target_density: float | np.ndarray) -> np.ndarray:
+    """(M,) bool: density reaches the target (1/mm: one, or (M,) each its own), up to MET_RTOL."""
     return density >= target_density * (1 - MET_RTOL)
 
 
@@ -71,12 +71,15 @@ def cover_model(
     counts: sp.sparray,
     areas: np.ndarray,
     counted: np.ndarray,
-    resolution_mm: float,
+    resolution_mm: float | np.ndarray,
     formulation: Formulation = "density",
     patches: Patches | None = None,
+    ignored: np.ndarray | None = None,
 ) -> CoverModel:
-    """The covering rows for a target resolution r̄ (mm): S for `density`, V for `visibility`;
-    per face, or per patch with each counted face taking its patch's row.
+    """The covering rows for a target resolution r̄ (mm; one for all, or (M,) each face's own):
+    S for `density`, V for `visibility`; per face, or per patch with each counted face taking
+    its patch's row (a patch's faces share one target: vpp_core.plan.regions groups them).
+    `ignored` (M,) faces get no row (ignored regions; patches hold counted faces only).
 
     Built on the seen rows' own sparsity pattern, one nnz-sized float array at a time (R of a
     309 k-face, 500-candidate model has 29 M entries, 0.35 GB per float64 CSR copy)."""
@@ -85,19 +88,21 @@ def cover_model(
     r = sp.csr_array(counts)
     seen = np.diff(r.indptr) > 0
     uncoverable = np.flatnonzero(counted & ~seen)
-    rows = np.flatnonzero(seen)
+    rows = np.flatnonzero(seen if ignored is None else seen & ~ignored)
     sub = sp.csr_array(r[rows])
     per_row = np.diff(sub.indptr)
     if formulation == "visibility":
         data, dense_enough = np.ones(sub.nnz), np.zeros(len(rows), bool)
     else:
         a = areas[rows]
+        res = np.broadcast_to(np.asarray(resolution_mm, dtype=np.float64), areas.shape)[rows]
         inv_area = np.divide(1.0, a, out=np.zeros(len(rows)), where=a > 0)
         data = np.repeat(inv_area, per_row)
         np.sqrt(np.multiply(sub.data, data, out=data), out=data)  # δ_ij
-        dense_enough = meets(np.add.reduceat(data, sub.indptr[:-1]), 1.0 / resolution_mm)
+        dense_enough = meets(np.add.reduceat(data, sub.indptr[:-1]), 1.0 / res)  # δ_i ≥ 1/r̄_i
         dense_enough &= a > 0
-        np.minimum(np.multiply(data, resolution_mm, out=data), 1.0, out=data)  # S_ij
+        np.multiply(data, np.repeat(res, per_row), out=data)
+        np.minimum(data, 1.0, out=data)  # S_ij = min(1, δ_ij r̄_i)
         data[~np.repeat(dense_enough, per_row)] = 1.0  # V_ij on rows short of δ̄
     matrix = sp.csr_array((data, sub.indices, sub.indptr), shape=sub.shape)
     return CoverModel(matrix, rows, np.arange(len(rows)), dense_enough, uncoverable)
@@ -112,10 +117,20 @@ def stray_free(counts: sp.csr_array) -> sp.csr_array:
     return r
 
 
+def patch_resolution(patches: Patches, resolution_mm: float | np.ndarray) -> np.ndarray:
+    """(P,) target resolution of each patch (mm): its faces' (one for all, or (M,) per face;
+    the faces of a patch share one)."""
+    per_face = np.broadcast_to(np.asarray(resolution_mm, dtype=np.float64), patches.of_face.shape)
+    out = np.zeros(patches.count)
+    mine = patches.of_face >= 0
+    out[patches.of_face[mine]] = per_face[mine]
+    return out
+
+
 def _patch_model(
     counts: sp.sparray,
     counted: np.ndarray,
-    resolution_mm: float,
+    resolution_mm: float | np.ndarray,
     formulation: Formulation,
     patches: Patches,
 ) -> CoverModel:
@@ -125,7 +140,7 @@ def _patch_model(
         stray_free(patches.sum_rows(counts)),
         patches.areas,
         np.ones(patches.count, dtype=bool),
-        resolution_mm,
+        patch_resolution(patches, resolution_mm),
         formulation,
     )
     row_of_patch = np.full(patches.count, -1, dtype=np.int64)

@@ -111,10 +111,14 @@ def make_patches(
     edge_mm: float,
     smooth_mm: float | None = None,
     corners: np.ndarray | None = None,
+    groups: np.ndarray | None = None,
+    group_edges: np.ndarray | None = None,
 ) -> Patches:
     """Group counted faces ((M, 3) centres and unit normals, (M,) areas mm²) into patches
     about `edge_mm` across, normals smoothed within `smooth_mm` (default half an edge), each
-    patch split into connected pieces where the faces' (M, 3) vertex ids `corners` are given."""
+    patch split into connected pieces where the faces' (M, 3) vertex ids `corners` are given;
+    with `groups` ((M,) int, 0..G-1), faces of different groups (regions with their own
+    target) never share a patch, and group g's patches are `group_edges[g]` mm across."""
     radius = edge_mm / 2 if smooth_mm is None else smooth_mm
     of_face = np.full(len(centres), -1, dtype=np.int64)
     smooth = np.zeros_like(normals)
@@ -122,10 +126,14 @@ def make_patches(
     for _ in range(SMOOTH_PASSES):
         smooth[counted] = smoothed(centres[counted], smooth[counted], areas[counted], radius)
     bins = np.argmax(smooth @ DIRECTIONS.T, axis=1)
+    if groups is not None:
+        bins = bins + len(DIRECTIONS) * np.asarray(groups, dtype=np.int64)
+    edges = np.full(1, edge_mm) if group_edges is None else np.asarray(group_edges)
     next_id = 0
     for b in np.unique(bins[counted]):
         faces = np.flatnonzero(counted & (bins == b))
-        seeds = _seeds(centres[faces], areas[faces], SEED_SPACING * edge_mm)
+        edge = float(edges[min(b // len(DIRECTIONS), len(edges) - 1)])
+        seeds = _seeds(centres[faces], areas[faces], SEED_SPACING * edge)
         _, nearest = cKDTree(centres[faces][seeds]).query(centres[faces])
         of_face[faces] = next_id + np.asarray(nearest, dtype=np.int64)
         next_id += len(seeds)

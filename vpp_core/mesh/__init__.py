@@ -2,5 +2,6 @@
 
 meshio (format parsing), orientation (outward normals), part (the Part and its checks),
 remesh (isotropic remesh, pymeshlab), refine (area elements), tessellate (the planning mesh
-of a file). Imports: the shared leaves only (vpp_core.errors).
+of a file), labels (per-face region labels from the file or an uploaded array).
+Imports: the shared leaves only (vpp_core.errors).
 """

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import hashlib
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -27,6 +27,7 @@ from numpy.typing import NDArray
 from trimesh import Trimesh
 
 from vpp_core.errors import LimitError, MeshError
+from vpp_core.mesh.labels import FaceLabels, file_labels
 from vpp_core.mesh.meshio import announced_size, parse_mesh_bytes, ply_bytes
 from vpp_core.mesh.orientation import orientation_signs
 
@@ -76,6 +77,8 @@ class Part:
     """SHA-256 hex of ID_PREFIX + vertices '<f8' bytes + faces '<i8' bytes."""
     warnings: tuple[str, ...]
     """Human-readable notes on what was repaired, ignored or excluded."""
+    labels: FaceLabels | None = None
+    """Region labels of the faces (from the file or uploaded with it); not part of the id."""
 
     @property
     def n_faces(self) -> int:
@@ -125,7 +128,18 @@ def load_mesh(
         raise MeshError(f"empty mesh: 0 triangles in {fmt.upper()} file")
     if len(faces) > max_faces:
         raise LimitError(f"mesh has {len(faces)} faces, the limit is {max_faces}")
-    return _build_part(vertices, faces, scale, notes)
+    part = _build_part(vertices, faces, scale, notes)
+    labels = file_labels(data, fmt, vertices, faces)  # face order is kept by _build_part
+    return with_labels(part, labels) if labels is not None else part
+
+
+def with_labels(part: Part, labels: FaceLabels | None) -> Part:
+    """`part` carrying `labels` (one per face, in its face order); same id."""
+    if labels is not None and len(labels.values) != part.n_faces:
+        raise MeshError(f"labels: {len(labels.values)} values for {part.n_faces} faces")
+    if labels is not None:
+        labels.values.setflags(write=False)
+    return replace(part, labels=labels)
 
 
 def _check_announced(faces: int, vertices: int, max_faces: int) -> None:
@@ -154,7 +168,11 @@ def part_from_children(part: Part, vertices: F64, faces: I64, parent: I64, note:
     rep = _representatives(f)
     counted = part.counted[parent] & ~degenerate & (rep == np.arange(len(f)))
     normals = np.where(degenerate[:, None], 0.0, part.normals[parent])
-    return _frozen_part(v, f, areas, normals, counted, rep, (*part.warnings, note))
+    child = _frozen_part(v, f, areas, normals, counted, rep, (*part.warnings, note))
+    if part.labels is None:
+        return child
+    labels = part.labels
+    return with_labels(child, FaceLabels(labels.values[parent], labels.names, labels.source))
 
 
 # ---------------------------------------------------------------- input hints

@@ -12,6 +12,7 @@ from vpp_core.cell.setup import Setup
 from vpp_core.plan.cycle import Objective, TourOut
 from vpp_core.plan.diagnostics import Diagnostics
 from vpp_core.plan.metrics import Metrics
+from vpp_core.plan.regions import Region, check_regions, finest
 from vpp_core.trace.rays import DEFAULT_BACKEND, BackendName
 
 Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
@@ -164,6 +165,20 @@ class PlanRequest(_Strict):
         description="the part in its cell (SETUP.json, docs/cell.md): part_to_cell, floor, "
         "fixtures (uploaded mesh ids), workspace, keep_out; none: the part alone in space",
     )
+    regions: list[Region] = Field(
+        [],
+        description="regions of interest, in order (later ones win where they overlap): each "
+        "selects faces by `faces` (ids), `box` or `sphere` (centroid inside, part frame, mm) or "
+        "`label` (the mesh's face labels) and has its own `resolution_mm`, or `ignore: true` "
+        "(not counted anywhere); faces no region selects take target.resolution_mm",
+    )
+    labels_id: str | None = Field(
+        None,
+        pattern=r"^[0-9a-f]{64}$",
+        description="service: the face labels that `label` regions select from, by the id "
+        "POST /v1/meshes answered for them (labels read from the file or uploaded as `labels`); "
+        "the mesh id names the geometry only, so two label sets of one mesh never clash",
+    )
     backend: BackendName = Field(
         DEFAULT_BACKEND,
         description="ray backend that computes R: `raster` (z-buffer of face ids at pixel "
@@ -175,6 +190,7 @@ class PlanRequest(_Strict):
     @model_validator(mode="after")
     def _fill_profile(self) -> PlanRequest:
         """Fill the fields left out (None) with the profile's values."""
+        check_regions(self.regions)
         chosen = PROFILES[self.profile]
         fill = {k: chosen[k] for k in ("rows", "min_coverage") if getattr(self.target, k) is None}
         self.target = self.target.model_copy(update=fill)
@@ -186,7 +202,7 @@ class PlanRequest(_Strict):
                     f"candidates.standoff_mm ({spec.standoff_mm}) must lie in the depth of field "
                     f"[{s.near_mm}, {s.far_mm}] mm"
                 )
-            by_target = standoff_for(self.sensor, self.target.resolution_mm)
+            by_target = standoff_for(self.sensor, finest(self.target.resolution_mm, self.regions))
             standoff = by_target if chosen["standoff"] == "target" else None
             update = {
                 "tilt_deg": chosen["tilt_deg"] if spec.tilt_deg is None else spec.tilt_deg,
@@ -322,6 +338,23 @@ class SetupOccluded(Uncoverable):
     )
 
 
+class RegionsInfo(BaseModel):
+    """The request's regions as applied: which face has which target."""
+
+    regions: list[Region]
+    """The regions, normalised (in order; later ones won where they overlapped)."""
+    default_resolution_mm: float
+    """The target of the faces no region selects (target.resolution_mm)."""
+    face_region: list[int]
+    """Run-length code of each face's region, in face order: [region, run, region, run, ...],
+    region = index into `regions`, -1 = default target (expand with numpy.repeat)."""
+    ignored: Uncoverable
+    """Counted faces of ignored regions: in no row and no coverage denominator."""
+    labels: dict[str, object] | None = None
+    """Where the mesh's face labels came from: {source, names} (None: the mesh had none)."""
+    warnings: list[str] = []
+
+
 class LeftOut(Uncoverable):
     """Coverable faces a partial cover leaves out."""
 
@@ -383,6 +416,8 @@ class PlanDocument(BaseModel):
     uncoverable: Uncoverable
     setup: Setup | None = None
     setup_occluded: SetupOccluded | None = None
+    regions: RegionsInfo | None = None
+    """The regions of interest as applied (None: the request had none)."""
     cover_rows: CoverRows | None = None
     adaptive: list[AdaptiveRound] = []
     partial: PartialInfo | None = None

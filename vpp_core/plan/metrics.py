@@ -56,12 +56,38 @@ class PaperMetrics(BaseModel):
     C_mean: float
 
 
+class RegionMetrics(BaseModel):
+    """One region's figures: fractions of its counted area (coverage_area: seen by a selected
+    view; met_area: r*_f ≤ its own resolution_mm; max_met_area: with every candidate)."""
+
+    name: str
+    resolution_mm: float | None
+    """The region's target (mm); None for an ignored region."""
+    ignored: bool = False
+    """Ignored regions count nowhere; their figures are what the plan happens to see."""
+    faces: int
+    """Faces of the region (after later regions took theirs), counted ones only."""
+    area_mm2: float
+    coverage_area: float
+    met_area: float
+    max_met_area: float
+    coverage_faces: float
+    met_faces: float
+    met_area_mm2: float
+    median_mm: float | None
+    histogram: Histogram
+    """r* of the region's faces over [0, 3 × its resolution]."""
+
+
 class Metrics(BaseModel):
     """All metrics of a plan."""
 
     coverage: CoverageMetrics
     resolution: ResolutionMetrics
     paper: PaperMetrics
+    regions: list[RegionMetrics] = []
+    """Per region (the request's `regions`, then `default`: the faces no region selects);
+    empty without regions."""
 
 
 def evaluate(
@@ -69,16 +95,20 @@ def evaluate(
     areas: np.ndarray,
     counted: np.ndarray,
     selected: np.ndarray,
-    resolution_mm: float,
+    resolution_mm: float | np.ndarray,
+    default_mm: float | None = None,
 ) -> Metrics:
-    """Metrics of the views `selected` (K,) given R (M, N), areas (M,) mm² and counted (M,)."""
+    """Metrics of the views `selected` (K,) given R (M, N), areas (M,) mm² and counted (M,),
+    against a target r̄ (mm: one for all, or (M,) each face's own; met = r*_i ≤ r̄_i); the
+    histogram spans 3 × `default_mm` (default: r̄)."""
     r = sp.csc_array(counts)
     delta = density_matrix(r, areas)
     best = np.asarray(delta.sum(axis=1)).ravel()
     achieved = np.asarray(delta[:, selected].sum(axis=1)).ravel()
     seen_any = seen(r, np.arange(r.shape[1]))
     seen_sel = seen(r, selected)
-    target = 1.0 / resolution_mm
+    target = 1.0 / np.asarray(resolution_mm, dtype=np.float64)
+    span = float(resolution_mm) if default_mm is None else default_mm
     w = areas * counted
     return Metrics(
         coverage=CoverageMetrics(
@@ -93,10 +123,51 @@ def evaluate(
             max_met_faces=_frac(meets(best, target), counted),
             max_met_area=_frac(meets(best, target), w),
             median_mm=_median_resolution(achieved, counted & seen_sel),
-            histogram=histogram(achieved, w, counted, resolution_mm),
+            histogram=histogram(achieved, w, counted, span),
         ),
         paper=_paper(r, selected),
     )
+
+
+def region_metrics(
+    counts: sp.sparray,
+    areas: np.ndarray,
+    counted: np.ndarray,
+    selected: np.ndarray,
+    members: list[tuple[str, float | None, np.ndarray]],
+) -> list[RegionMetrics]:
+    """Per region (name, its resolution mm or None when ignored, (M,) bool faces): its
+    coverage and met fractions, each face against the region's own target (counted faces
+    only; an ignored region's faces are judged against nothing but seen or not)."""
+    r = sp.csc_array(counts)
+    delta = density_matrix(r, areas)
+    best = np.asarray(delta.sum(axis=1)).ravel()
+    achieved = np.asarray(delta[:, selected].sum(axis=1)).ravel()
+    seen_sel = seen(r, selected)
+    out = []
+    for name, res, faces in members:
+        mine = faces & counted
+        w = areas * mine
+        met = meets(achieved, 1.0 / res) if res else np.zeros(len(areas), bool)
+        met_best = meets(best, 1.0 / res) if res else np.zeros(len(areas), bool)
+        out.append(
+            RegionMetrics(
+                name=name,
+                resolution_mm=res,
+                ignored=res is None,
+                faces=int(mine.sum()),
+                area_mm2=float(w.sum()),
+                coverage_area=_frac(seen_sel, w),
+                met_area=_frac(met, w),
+                max_met_area=_frac(met_best, w),
+                coverage_faces=_frac(seen_sel, mine),
+                met_faces=_frac(met, mine),
+                met_area_mm2=float(w[met].sum()),
+                median_mm=_median_resolution(achieved, mine & seen_sel),
+                histogram=histogram(achieved, w, mine, res or 1.0),
+            )
+        )
+    return out
 
 
 def resolution_mm(density: np.ndarray) -> np.ndarray:

@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
+import json
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import lru_cache
 
 import numpy as np
@@ -14,7 +15,7 @@ import scipy.sparse as sp
 from vpp_core.camera.pose import Viewpoints, make_viewpoints
 from vpp_core.candidates.generator import GeneratorSettings, generate
 from vpp_core.cell.geometry import Cell, resolve
-from vpp_core.cover.density import CoverModel, cover_model, meets, stray_free
+from vpp_core.cover.density import CoverModel, cover_model, meets, patch_resolution, stray_free
 from vpp_core.cover.partial import PartialCover, solve_partial
 from vpp_core.cover.patches import SMOOTH_TARGETS, Patches, make_patches, patch_edge
 from vpp_core.errors import LimitError
@@ -43,8 +44,10 @@ from vpp_core.plan.document import (
     ViewpointIn,
     ViewpointOut,
 )
-from vpp_core.plan.metrics import evaluate
+from vpp_core.plan.metrics import evaluate, region_metrics
 from vpp_core.plan.objective import by_objective
+from vpp_core.plan.regions import FaceTargets, Region, face_targets, mandatory_weights
+from vpp_core.plan.regionsdoc import region_members, regions_info
 from vpp_core.plan.tour import path_length
 from vpp_core.plan.warm import warm
 from vpp_core.trace.rays import RayBackend
@@ -162,19 +165,28 @@ def solve(
     settings: SolverSettings,
     threads: int | None = None,
     costs: np.ndarray | None = None,
+    mandatory: np.ndarray | None = None,
 ) -> PartialCover:
     """Cover the rows (all, or target.min_coverage of their area (M,) mm²) as `settings` ask,
-    columns at `costs` (N,) (None: one each)."""
-    return solve_partial(
+    columns at `costs` (N,) (None: one each); `mandatory` (rows,) rows (regions with their own
+    target) are covered whatever min_coverage, which then applies to the other rows' area."""
+    area = model.row_areas(areas)
+    strict = np.zeros(len(area), bool) if mandatory is None else mandatory
+    weights, fraction = mandatory_weights(area, strict, target.fraction)
+    cover = solve_partial(
         model.matrix,
-        model.row_areas(areas),
-        target.fraction,
+        weights,
+        fraction,
         costs,
         method=settings.name,
         time_limit=settings.time_limit_s,
         mip_rel_gap=settings.mip_rel_gap,
         threads=threads,
     )
+    if weights is area:
+        return cover
+    required = target.fraction * float(area[~strict].sum()) + float(area[strict].sum())
+    return replace(cover, required=required, achieved=float(area[cover.satisfied].sum()))
 
 
 class _Clock:
@@ -259,27 +271,33 @@ def finish(
     (with the setup `cell`, else the request's)."""
     clock = _Clock(progress, timings)
     cell = cell_of(request, cell)
+    targets = targets_of(part, request)
+    part = targets.part  # ignored faces not counted
     with clock.stage("matrices"):
-        patches = cover_patches(part, request.target)
+        patches = cover_patches(part, request.target, targets)
         model = cover_model(
             trace.counts,
             part.areas,
             part.counted,
-            request.target.resolution_mm,
+            targets.resolution_mm,
             request.target.formulation,
             patches,
+            targets.ignored,
         )
     with clock.stage("solve"):
         settings = _left(request.solver, clock.timings)
-        cover = solve(model, part.areas, request.target, settings, threads)
+        must = targets.region_rows(model.face_row, model.faces, model.matrix.shape[0])
+        cover = solve(model, part.areas, request.target, settings, threads, None, must)
         cover, tour = by_objective(
             cover,
             request.objective,
             views.positions,
-            lambda c: solve(model, part.areas, request.target, settings, threads, c),
+            lambda c: solve(model, part.areas, request.target, settings, threads, c, must),
         )
     with clock.stage("metrics"):
-        doc = document(part, request, views, info, trace, model, cover, clock.timings, tour)
+        doc = document(
+            part, request, views, info, trace, model, cover, clock.timings, tour, targets
+        )
     with clock.stage("diagnostics"):
         doc.diagnostics = diagnose(
             part,
@@ -295,7 +313,7 @@ def finish(
     doc.timings_s = clock.timings
     doc.rays.reused = reused
     chosen = np.array([v.id for v in doc.viewpoints], dtype=np.int64)
-    doc.cover_rows = _cover_rows(part, request.target, patches, model, trace, chosen)
+    doc.cover_rows = _cover_rows(part, targets, patches, model, trace, chosen)
     doc.adaptive = list(rounds)
     if cell is not None:
         free = request.model_copy(update={"setup": None})
@@ -326,16 +344,19 @@ def grow(
     the setup (`cell`, else the request's) lets them be. `spent_s`: wall seconds the plan
     spent before (no round starts past ADAPT_SHARE of the time limit)."""
     cell = cell_of(request, cell)
-    patches = cover_patches(part, request.target)
+    targets = targets_of(part, request)
+    p = targets.part
+    patches = cover_patches(p, request.target, targets)
     t = request.target
 
     def model_of(tr: Trace) -> CoverModel:
-        args = (tr.counts, part.areas, part.counted, t.resolution_mm, t.formulation, patches)
-        return cover_model(*args)
+        args = (tr.counts, p.areas, p.counted, targets.resolution_mm, t.formulation, patches)
+        return cover_model(*args, targets.ignored)
 
     def quick(model: CoverModel, seconds: float) -> PartialCover:
         settings = request.solver.model_copy(update={"name": "greedy", "time_limit_s": seconds})
-        return solve(model, part.areas, t, settings, threads)
+        must = targets.region_rows(model.face_row, model.faces, model.matrix.shape[0])
+        return solve(model, p.areas, t, settings, threads, None, must)
 
     backend = backend or setup_backend(part, request, cell, trace.backend)
     deadline = time.perf_counter() + ADAPT_SHARE * request.solver.time_limit_s - spent_s
@@ -357,7 +378,7 @@ def grow(
 
 def _cover_rows(
     part: Part,
-    target: Target,
+    targets: FaceTargets,
     patches: Patches | None,
     model: CoverModel,
     trace: Trace,
@@ -379,7 +400,12 @@ def _cover_rows(
         edge_mm=patches.edge_mm,
         sampled_area=float(patches.areas[np.diff(mine.indptr) > 0].sum() / total),
         max_sampled_area=float(patches.areas[sampled_by_any].sum() / total),
-        met_area=float(patches.areas[meets(density, 1 / target.resolution_mm)].sum() / total),
+        met_area=float(
+            patches.areas[
+                meets(density, 1 / patch_resolution(patches, targets.resolution_mm))
+            ].sum()
+            / total
+        ),
         patch_of_face=patches.of_face.tolist(),
         unsampled=_uncoverable(part, unsampled),
     )
@@ -391,24 +417,46 @@ def spec_uncoverable(part: Part, trace: Trace) -> np.ndarray:
     return np.flatnonzero(part.counted & ~seen)
 
 
-def cover_patches(part: Part, target: Target) -> Patches | None:
-    """The patches the cover's rows are made of, or None for one row per face (target.rows)."""
+def cover_patches(part: Part, target: Target, targets: FaceTargets | None = None) -> Patches | None:
+    """The patches the cover's rows are made of, or None for one row per face (target.rows);
+    with regions (`targets`), faces of different targets never share a patch and each
+    region's patches are sized by its own target."""
     if target.rows == "faces":
         return None
-    r = target.resolution_mm
-    edge = patch_edge(r, float(part.areas[part.counted].sum()))
-    return _patches(part, edge, SMOOTH_TARGETS * r)
+    area = float(part.areas[part.counted].sum())
+    edge = patch_edge(target.resolution_mm, area)
+    smooth = SMOOTH_TARGETS * target.resolution_mm
+    if targets is None or targets.uniform:
+        return _patches(part, edge, smooth, None)
+    return _patches(part, edge, smooth, targets)
 
 
 @lru_cache(maxsize=2)
-def _patches(part: Part, edge_mm: float, smooth_mm: float) -> Patches:
-    """The part's patches of `edge_mm`, normals smoothed within `smooth_mm`, split into
-    connected pieces, grouped once: the
-    adaptive rounds, the final cover and each row of a study ask for the same ones (3.7 s on
-    turbineblade's 199 k faces)."""
+def _patches(part: Part, edge_mm: float, smooth_mm: float, targets: FaceTargets | None) -> Patches:
+    """The part's patches of `edge_mm` (per region with `targets`), normals smoothed within
+    `smooth_mm`, split into connected pieces, grouped once: the adaptive rounds, the final
+    cover and each row of a study ask for the same ones (3.7 s on turbineblade's 199 k faces)."""
     centres = part.vertices[part.faces].mean(axis=1)
     args = (centres, part.normals, part.areas, part.counted, edge_mm, smooth_mm, part.faces)
-    return make_patches(*args)
+    if targets is None:
+        return make_patches(*args)
+    groups = targets.groups()
+    area = float(part.areas[part.counted].sum())
+    first = np.unique(groups, return_index=True)[1]
+    edges = np.array([patch_edge(targets.resolution_mm[f], area) for f in first])
+    return make_patches(*args, groups=groups, group_edges=edges)
+
+
+def targets_of(part: Part, request: PlanRequest) -> FaceTargets:
+    """Each face's target and region for `request` (cached: grow and finish ask alike)."""
+    regions = json.dumps([r.model_dump(mode="json") for r in request.regions])
+    return _targets(part, request.target.resolution_mm, regions)
+
+
+@lru_cache(maxsize=4)
+def _targets(part: Part, default_mm: float, regions: str) -> FaceTargets:
+    """face_targets for the regions given as JSON (hashable, for the cache)."""
+    return face_targets(part, default_mm, [Region.model_validate(r) for r in json.loads(regions)])
 
 
 def _counter(progress: Progress | None, stage: str, total: int) -> Callable[[int], None]:
@@ -433,14 +481,26 @@ def document(
     cover: PartialCover,
     timings: Timings,
     tour: TourOut | None = None,
+    targets: FaceTargets | None = None,
 ) -> PlanDocument:
-    """Assemble the plan document from the stages' results (`tour`: the cover's, else made)."""
+    """Assemble the plan document from the stages' results (`tour`: the cover's, else made;
+    `targets`: each face's target, with regions)."""
     result = cover.result
     tour = tour or make_tour(views.positions, result.selected, request.objective)
     chosen = np.asarray(tour.order, dtype=np.int64)
-    metrics = evaluate(trace.counts, part.areas, part.counted, chosen, request.target.resolution_mm)
+    default = request.target.resolution_mm
+    per_face = default if targets is None else targets.resolution_mm
+    metrics = evaluate(trace.counts, part.areas, part.counted, chosen, per_face, default)
+    info_regions = None
+    if targets is not None and request.regions:
+        members = region_members(targets, request.regions, default)
+        metrics.regions = region_metrics(
+            trace.counts, part.areas, targets.whole.counted, chosen, members
+        )
+        info_regions = regions_info(targets, request)
     return PlanDocument(
-        mesh=mesh_info(part),
+        mesh=mesh_info(part if targets is None else targets.whole),
+        regions=info_regions,
         sensor=request.sensor,
         target=request.target,
         candidates=_poses(views, np.arange(len(views)), CandidateOut),

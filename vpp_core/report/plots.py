@@ -267,6 +267,33 @@ def histogram_figure(
     return fig
 
 
+def regions_png(doc: PlanDocument) -> bytes:
+    """One histogram of r* per region of the plan (the counted ones, then `default`), each
+    against the region's own target, in the viewer's colours."""
+    shown = [r for r in doc.metrics.regions if not r.ignored and r.faces]
+    cols = min(len(shown), 2) or 1
+    rows = max(1, -(-len(shown) // cols))
+    fig = Figure(figsize=(6.4 * cols, 3.6 * rows))
+    for k, r in enumerate(shown):
+        ax = fig.add_subplot(rows, cols, k + 1)
+        h, target = r.histogram, float(r.resolution_mm or doc.target.resolution_mm)
+        edges = np.asarray(h.edges_mm)
+        total = sum(h.area_mm2) + h.overflow_area_mm2 + h.unseen_area_mm2 or 1.0
+        share = 100 * np.asarray(h.area_mm2) / total
+        ax.bar(edges[:-1], share, np.diff(edges), align="edge", color=bin_colours(edges, target))
+        ax.axvline(target, color="k", lw=1.5, label=f"r̄ = {target:g} mm")
+        ax.set_title(
+            f"{r.name}: {r.faces:,} faces, {r.area_mm2:,.0f} mm², met {100 * r.met_area:.1f} %",
+            fontsize=9,
+        )
+        ax.set_xlabel("achieved resolution r* per face (mm)")
+        ax.set_ylabel("share of the region's area (%)")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.suptitle(f"resolution per region: {len(doc.viewpoints)} viewpoints")
+    return _png(fig)
+
+
 def neighbours_png(stats: CloudStats, title: str = "") -> bytes:
     """Distribution of neighbour counts within r̄ over the simulated point cloud (Fig. 4)."""
     fig = Figure(figsize=(6.4, 4.2))
@@ -469,7 +496,8 @@ def plan_plots(
     part: Part, doc: PlanDocument, cloud: CloudStats | None = None, faces: FaceColours = None
 ) -> dict[str, bytes]:
     """A plan's pictures by file name: histogram, cameras (its part coloured by r* given the
-    faces' state and r*) and, with a point cloud, neighbours."""
+    faces' state and r*), with regions, regions (one histogram per region against its own
+    target) and, with a point cloud, neighbours."""
     pngs = {
         "histogram.png": histogram_png(
             [(doc.target.formulation, doc.metrics.resolution.histogram)],
@@ -478,6 +506,8 @@ def plan_plots(
         ),
         "cameras.png": cameras_png(part, doc, faces),
     }
+    if doc.metrics.regions:
+        pngs["regions.png"] = regions_png(doc)
     if cloud is not None:
         pngs["neighbours.png"] = neighbours_png(cloud)
     return pngs

@@ -25,6 +25,7 @@ from vpp_core.errors import VppError
 from vpp_core.mesh.part import Part
 from vpp_core.plan.document import PlanDocument
 from vpp_core.plan.metrics import resolution_mm, seen
+from vpp_core.plan.regionsdoc import face_regions
 
 MAGIC = b"VPPS"
 ALIGN = 8
@@ -35,6 +36,7 @@ MET, UNMET, UNCOVERED, UNCOVERABLE, EXCLUDED = range(5)
 """Face states: r* ≤ r̄; seen by the plan but r* > r̄; seen by some candidate but by no selected
 view; counted but seen by no candidate; not counted (degenerate or duplicate face)."""
 STATE_NAMES = ("met", "unmet", "uncovered", "uncoverable", "excluded")
+"""With regions, `met` is against each face's own target and ignored faces are `excluded`."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -52,9 +54,10 @@ def face_results(
     areas: np.ndarray,
     counted: np.ndarray,
     selected: np.ndarray,
-    target_mm: float,
+    target_mm: float | np.ndarray,
 ) -> FaceResults:
-    """Results per face of R (M, N) for the views `selected` (K,), areas (M,) mm², r̄ in mm."""
+    """Results per face of R (M, N) for the views `selected` (K,), areas (M,) mm², r̄ in mm
+    (one, or (M,) each face's own)."""
     r = sp.csc_array(counts)
     sub = sp.csc_array(r[:, selected])
     sub.sort_indices()
@@ -133,9 +136,21 @@ def unpack(data: bytes) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
 def plan_scene(part: Part, doc: PlanDocument, counts: sp.sparray) -> bytes:
     """The packed per-face results of the plan `doc` on `part` with R (M, N)."""
     selected = np.array([v.id for v in doc.viewpoints], dtype=np.int64)
-    results = face_results(counts, part.areas, part.counted, selected, doc.target.resolution_mm)
+    region, target, ignored = face_regions(doc, part.n_faces)
+    counted = part.counted & ~ignored
+    results = face_results(counts, part.areas, counted, selected, target)
+    arrays = result_arrays(results)
+    meta: dict[str, Any] = {}
+    if doc.regions is not None:  # per face: its region (0 = default, k = regions[k-1]), r̄_f
+        arrays["region"] = (region + 1).astype(np.uint32)
+        arrays["target_mm"] = target.astype(np.float32)
+        meta["regions"] = [
+            {"name": r.name, "resolution_mm": r.resolution_mm, "ignore": r.ignore}
+            for r in doc.regions.regions
+        ]
     return pack(
-        result_arrays(results),
+        arrays,
+        **meta,
         faces=part.n_faces,
         views=selected.tolist(),
         target_mm=doc.target.resolution_mm,

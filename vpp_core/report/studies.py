@@ -19,7 +19,7 @@ from vpp_core.candidates.generator import planning_mesh
 from vpp_core.cell.geometry import Cell
 from vpp_core.cover.density import CoverModel, Formulation, cover_model
 from vpp_core.cover.partial import PartialCover
-from vpp_core.errors import VppError
+from vpp_core.errors import RegionError, VppError
 from vpp_core.mesh.part import Part, part_from_arrays
 from vpp_core.plan.cellplan import cell_of, setup_backend
 from vpp_core.plan.document import (
@@ -30,7 +30,7 @@ from vpp_core.plan.document import (
     Timings,
     ViewpointOut,
 )
-from vpp_core.plan.metrics import Histogram, evaluate
+from vpp_core.plan.metrics import Histogram, RegionMetrics, evaluate, region_metrics
 from vpp_core.plan.pipeline import (
     Limits,
     candidates_for,
@@ -40,7 +40,10 @@ from vpp_core.plan.pipeline import (
     document,
     mesh_info,
     solve,
+    targets_of,
 )
+from vpp_core.plan.regions import FaceTargets
+from vpp_core.plan.regionsdoc import region_members
 from vpp_core.trace.raytrace import Trace, trace_counts
 
 DEFAULT_RESOLUTIONS = [0.1, 0.12, 0.14, 0.16, 0.18, 0.2, 0.25, 0.3, 0.4, 0.5]
@@ -84,6 +87,9 @@ class StudyRow(BaseModel):
     solver: RowSolver
     histogram: Histogram
     poses: list[ViewpointOut] = Field(description="the selected viewpoints, in visiting order")
+    regions: list[RegionMetrics] = Field(
+        [], description="per region of the request (each against its own target), then default"
+    )
 
 
 class SweepRow(StudyRow):
@@ -130,6 +136,7 @@ def _row_fields(doc: PlanDocument) -> dict[str, object]:
         solver=RowSolver(status=doc.solver.status, gap=doc.solver.gap),
         histogram=m.resolution.histogram,
         poses=doc.viewpoints,
+        regions=m.regions,
     )
 
 
@@ -164,29 +171,33 @@ class _Solver:
         self.seconds: list[float] = []
         self._visibility: dict[tuple[float, float | None], PartialCover] = {}
 
-    def cover(self, request: PlanRequest) -> tuple[PartialCover, CoverModel]:
+    def cover(self, request: PlanRequest) -> tuple[PartialCover, CoverModel, FaceTargets]:
         """The cover for `request.target` on this R (visibility solved once per row set: V has
         no r̄, but patch rows are sized by it)."""
         t = request.target
         start = time.perf_counter()
-        patches = cover_patches(self.part, t)
+        targets = targets_of(self.part, request)  # the regions keep their own targets
+        part = targets.part
+        patches = cover_patches(part, t, targets)
         model = cover_model(
             self.trace.counts,
-            self.part.areas,
-            self.part.counted,
-            t.resolution_mm,
+            part.areas,
+            part.counted,
+            targets.resolution_mm,
             t.formulation,
             patches,
+            targets.ignored,
         )
         key = (t.fraction, patches.edge_mm if patches else None)
         if t.formulation == "visibility" and key in self._visibility:
             cover = self._visibility[key]
         else:
-            cover = solve(model, self.part.areas, t, request.solver, self.threads)
+            must = targets.region_rows(model.face_row, model.faces, model.matrix.shape[0])
+            cover = solve(model, part.areas, t, request.solver, self.threads, None, must)
             if t.formulation == "visibility":
                 self._visibility[key] = cover
         self.seconds.append(round(time.perf_counter() - start, 4))
-        return cover, model
+        return cover, model, targets
 
 
 def _with_target(request: PlanRequest, resolution: float, formulation: Formulation) -> PlanRequest:
@@ -222,8 +233,10 @@ def resolution_sweep(
         for r in resolutions:
             _report(progress, "solve", len(rows), 2 * len(resolutions))
             req = _with_target(request, r, formulation)
-            cover, model = solver.cover(req)
-            doc = document(part, req, views, info, trace, model, cover, Timings())
+            cover, model, targets = solver.cover(req)
+            doc = document(
+                targets.part, req, views, info, trace, model, cover, Timings(), None, targets
+            )
             rows.append(SweepRow(resolution_mm=r, **_row_fields(doc)))
     return _study("resolution", part, request, rows, trace.seconds, solver.seconds, start)
 
@@ -271,20 +284,32 @@ def decimation_study(
         solver = _Solver(planning, trace, threads)
         for formulation in FORMULATIONS:
             req = _with_target(plain, request.target.resolution_mm, formulation)
-            cover, model = solver.cover(req)
-            doc = document(planning, req, views, info, trace, model, cover, Timings())
+            cover, model, targets = solver.cover(req)
+            doc = document(
+                targets.part, req, views, info, trace, model, cover, Timings(), None, targets
+            )
             chosen = np.array([p.id for p in doc.viewpoints], dtype=np.int64)
             check = trace_counts(
                 part, request.sensor, views.take(chosen), backend=original, threads=threads
             )
             traced += check.seconds
+            judged = targets_of(part, req)  # the regions on the original
             doc.metrics = evaluate(
                 check.counts,
-                part.areas,
-                part.counted,
+                judged.part.areas,
+                judged.part.counted,
                 np.arange(len(chosen)),
+                judged.resolution_mm,
                 request.target.resolution_mm,
             )
+            if req.regions:
+                doc.metrics.regions = region_metrics(
+                    check.counts,
+                    part.areas,
+                    part.counted,
+                    np.arange(len(chosen)),
+                    region_members(judged, req.regions, request.target.resolution_mm),
+                )
             rows.append(
                 DecimationRow(
                     ratio=ratio,
@@ -303,6 +328,12 @@ def check_study(
     """Refuse, before any work, a study whose values or request are malformed or too big."""
     if kind == "decimation":
         _check_values(values, "ratios", upper=1.0)
+        by_id = [r.name for r in request.regions if r.faces is not None or r.label is not None]
+        if by_id:
+            raise RegionError(
+                f"a decimation study plans on new faces: regions by face ids or labels cannot "
+                f"follow them ({', '.join(by_id)}); select by box or sphere"
+            )
         if not isinstance(request.candidates, CandidateGenerator):
             raise VppError("the decimation study generates its candidates: give a count")
     else:

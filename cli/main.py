@@ -364,12 +364,14 @@ def run_plan(args: argparse.Namespace) -> int:
         print(f"mesh written to {args.mesh_out}")
     stats = _point_cloud(args, part, doc, settings.max_cloud_points, threads)
     if args.plots:
+        from vpp_core.plan.cellplan import setup_backend
         from vpp_core.report.plots import (
             plan_plots,  # matplotlib: imported only when plots are asked
         )
         from vpp_core.report.scene import selected_face_results
 
-        faces = selected_face_results(part, doc, threads)  # cameras.png in the viewer's colours
+        backend = setup_backend(part, request, cell)  # the setup's fixtures occlude, as planned
+        faces = selected_face_results(part, doc, threads, backend)  # cameras.png: r* colours
         pngs = plan_plots(part, doc, stats, faces=(faces.state, faces.resolution_mm))
         files = {"plan.json": text.encode(), **pngs}
         if stats is not None:

@@ -78,7 +78,8 @@ function forget() {
   if (!state.doc) return;
   select(null);
   state.doc = null;
-  for (const id of ['metrics', 'legend', 'camera-info']) $(id).innerHTML = '';
+  for (const id of ['metrics', 'legend', 'camera-info', 'links']) $(id).innerHTML = '';
+  if (state.playing) $('play').click(); // stop the tour: there is none to step through
   $('summary').classList.add('pending');
   view.clearPlan();
   stepper(0);
@@ -263,7 +264,7 @@ function select(k) {
 }
 
 function step(delta) {
-  const n = state.doc.viewpoints.length;
+  const n = state.doc?.viewpoints.length ?? 0; // none while a plan loads
   if (!n) return;
   const k = view.selected === null ? (delta > 0 ? 0 : n - 1) : (view.selected + delta + n) % n;
   select(k);

@@ -198,8 +198,8 @@ export class PlanScene {
     this.scene.add(this.marks);
   }
 
-  /** The problem marks: face, canvas CSS px [x, y], sRGB colour, and whether its face turns
-   * towards the eye. */
+  /** The problem marks: face, canvas CSS px [x, y], sRGB colour, whether its face turns
+   * towards the eye, the mark's and the eye's world positions (mm). */
   problemMarks() {
     if (!this.marks) return [];
     const { width, height } = this.size();
@@ -212,7 +212,8 @@ export class PlanScene {
       const facing = n.dot(eye.clone().sub(w)) > 0;
       const p = w.clone().project(this.camera);
       const xy = [((p.x + 1) / 2) * width, ((1 - p.y) / 2) * height];
-      return { face: f, xy, rgb: Array.from(this.shown.subarray(3 * f, 3 * f + 3)), facing };
+      const rgb = Array.from(this.shown.subarray(3 * f, 3 * f + 3));
+      return { face: f, xy, rgb, facing, world: w.toArray(), eye: eye.toArray() };
     });
   }
 

@@ -159,9 +159,12 @@ def plan_scene(part: Part, doc: PlanDocument, counts: sp.sparray) -> bytes:
     )
 
 
-def selected_face_results(part: Part, doc: PlanDocument, threads: int | None = None) -> FaceResults:
+def selected_face_results(
+    part: Part, doc: PlanDocument, threads: int | None = None, backend: Any = None
+) -> FaceResults:
     """The per-face results of `doc` on `part` without the candidates' R: its selected
-    viewpoints traced again (the plan's sensor and backend), uncoverable faces from the
+    viewpoints traced again (the plan's sensor; `backend`, with the setup's occluders where the
+    plan has a setup, else the plan's backend on the part alone), uncoverable faces from the
     document's ids. What `plan_scene` gives from the whole R (for the CLI's plots)."""
     from vpp_core.camera.pose import make_viewpoints
     from vpp_core.trace.raytrace import make_backend, trace_counts
@@ -172,7 +175,7 @@ def selected_face_results(part: Part, doc: PlanDocument, threads: int | None = N
         np.array([v.gaze for v in vps]).reshape(-1, 3),
         np.array([v.up for v in vps]).reshape(-1, 3),
     )
-    backend = make_backend(part, doc.rays.backend) if len(vps) else None
+    backend = backend or (make_backend(part, doc.rays.backend) if len(vps) else None)
     counts = (
         trace_counts(part, doc.sensor, views, backend=backend, threads=threads).counts
         if len(vps)

@@ -373,6 +373,7 @@ class Timings(BaseModel):
     """Wall seconds per stage."""
 
     load: float = 0.0
+    """Before planning: reading the mesh (the CLI: since the command started, imports too)."""
     candidates: float = 0.0
     trace: float = 0.0
     adaptive: float = 0.0

@@ -1,7 +1,7 @@
 """How fast the API refuses hostile requests (the figures of docs/reliability.md).
 
     VPP_REDIS_URL=redis://127.0.0.1:6379/13 python -m bench.hostile [--repeat 5]
-    VPP_REDIS_URL=redis://127.0.0.1:6379/13 python -m bench.hostile --served [--only WORD]
+    VPP_REDIS_URL=redis://127.0.0.1:6379/13 python -m bench.hostile --served [--only W] [--meshes]
 
 In-process (TestClient) against the app on that Redis (nothing is enqueued: every request
 below is refused) and a temporary store. Per case: status, and the median and worst
@@ -10,7 +10,9 @@ peak RSS growth over the whole run. The core mesh cases call `load_mesh` directl
 
 `--served` runs the issue-34 cases (`bench.hostile_served`) against a real uvicorn server in
 a child process instead: status, media type, body size, seconds, the slowest `/livez` answer
-meanwhile, and the server's peak RSS growth and RSS afterwards.
+meanwhile, and the server's peak RSS growth and RSS afterwards; `--meshes` adds uploads of a
+real 4.9 M-triangle mesh as binary STL, binary and ASCII PLY and OBJ (written to a temporary
+folder first: about 1 GB).
 """
 
 from __future__ import annotations
@@ -106,11 +108,14 @@ def main() -> None:
     parser.add_argument("--repeat", type=int, default=5)
     parser.add_argument("--served", action="store_true", help="issue-34 cases, real server")
     parser.add_argument("--only", help="--served: the cases whose name holds this word")
+    parser.add_argument(
+        "--meshes", action="store_true", help="--served: also real STL/PLY/OBJ meshes at the limits"
+    )
     args = parser.parse_args()
     if args.served:
         from bench.hostile_served import run_served
 
-        run_served(args.only)
+        run_served(args.only, args.meshes)
         return
     settings = Settings(store_url=tempfile.mkdtemp(), queue="vpp-bench-hostile")
     rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss

@@ -10,6 +10,7 @@ from generators with a Content-Length, so the client holds none of them.
 
 from __future__ import annotations
 
+import math
 import os
 import socket
 import subprocess
@@ -22,6 +23,7 @@ from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import httpx
+import numpy as np
 
 from vpp_core.samples import sample_stl
 
@@ -176,6 +178,85 @@ def json_cases(mesh: str) -> dict[str, Callable[[str], Any]]:
     }
 
 
+GRID_FACES = 4_900_000
+"""Triangles of the generated meshes: under the 5 M face limit, about 200 MB as text."""
+
+
+def grid(faces: int) -> tuple[np.ndarray, np.ndarray]:
+    """(V, 3) float32 mm and (M, 3) int64 of a wavy n × n grid of about `faces` triangles
+    (all of non-zero area, vertices shared): a real mesh as big as the limits allow."""
+    n = int(math.ceil(math.sqrt(faces / 2)))
+    t = np.arange(n + 1, dtype=np.float64)
+    xx, yy = np.meshgrid(t, t, indexing="ij")
+    zz = 5 * np.sin(xx / 40) * np.cos(yy / 30)
+    v = np.column_stack([xx.ravel(), yy.ravel(), zz.ravel()]).astype(np.float32)
+    idx = np.arange((n + 1) ** 2).reshape(n + 1, n + 1)
+    a, b, c, d = idx[:-1, :-1], idx[1:, :-1], idx[1:, 1:], idx[:-1, 1:]
+    f = np.vstack([np.column_stack([a.ravel(), b.ravel(), c.ravel()]),
+                   np.column_stack([a.ravel(), c.ravel(), d.ravel()])])  # fmt: skip
+    return v, f
+
+
+def write_meshes(folder: str, faces: int = GRID_FACES) -> dict[str, str]:
+    """The grid as binary STL, binary PLY, ASCII PLY and OBJ files in `folder`; paths by format."""
+    v, f = grid(faces)
+    paths = {k: os.path.join(folder, f"grid.{k.split()[0]}") for k in ("stl", "ply", "obj")}
+    paths["ply ascii"] = os.path.join(folder, "grid_ascii.ply")
+    tri = np.zeros(len(f), dtype=[("n", "<f4", 3), ("v", "<f4", (3, 3)), ("a", "<u2")])
+    tri["v"] = v[f]
+    with open(paths["stl"], "wb") as fh:
+        fh.write(b"\0" * 80 + len(f).to_bytes(4, "little") + tri.tobytes())
+    del tri
+    head = "ply\nformat {} 1.0\nelement vertex %d\nproperty float x\nproperty float y\n"
+    head += "property float z\nelement face %d\nproperty list uchar int vertex_indices\n"
+    head += "end_header\n"
+    with open(paths["ply"], "wb") as fh:
+        fh.write((head.format("binary_little_endian") % (len(v), len(f))).encode())
+        fh.write(v.astype("<f4").tobytes())
+        rows = np.zeros(len(f), dtype=[("k", "u1"), ("i", "<i4", 3)])
+        rows["k"], rows["i"] = 3, f
+        fh.write(rows.tobytes())
+    with open(paths["ply ascii"], "w") as fh:
+        fh.write(head.format("ascii") % (len(v), len(f)))
+        np.savetxt(fh, v, fmt="%.4f")
+        np.savetxt(fh, np.column_stack([np.full(len(f), 3), f]), fmt="%d")
+    with open(paths["obj"], "w") as fh:
+        np.savetxt(fh, v, fmt="v %.4f %.4f %.4f")
+        np.savetxt(fh, f + 1, fmt="f %d %d %d")
+    return paths
+
+
+def file_multipart(path: str, name: str) -> Body:
+    """A multipart body of the file at `path`, streamed from disk, named `name`."""
+    with open(path, "rb") as fh:
+        size = fh.seek(0, os.SEEK_END)
+    reader: list[Any] = []
+
+    def chunk(n: int) -> bytes:
+        if not reader:
+            reader.append(open(path, "rb"))  # noqa: SIM115 (closed at its end)
+        data = reader[0].read(n)
+        if len(data) < n or reader[0].tell() == size:
+            reader[0].close()
+        return data
+
+    return multipart(size, chunk, name)
+
+
+def mesh_cases(paths: dict[str, str]) -> dict[str, Callable[[str], Any]]:
+    """Uploads of real meshes at the limits: the grid as STL, PLY (binary, ASCII) and OBJ."""
+    out: dict[str, Callable[[str], Any]] = {}
+    for kind, path in paths.items():
+        mb = os.path.getsize(path) / MB
+        name = os.path.basename(path)
+        out[f"{mb:.0f} MB {kind.upper()} of {GRID_FACES / 1e6:.1f} M triangles"] = (
+            lambda b, path=path, name=name: post(
+                b, "/v1/meshes", file_multipart(path, name), MULTIPART
+            )
+        )
+    return out
+
+
 def upload_cases() -> dict[str, Callable[[str], Any]]:
     """Mesh uploads: random bytes, zero-area STL, four at once, over the cap."""
     return {
@@ -219,8 +300,9 @@ def describe(r: httpx.Response) -> str:
     return f"{status} {kind} {len(r.content)} B{allow}"
 
 
-def run_served(only: str | None) -> None:
-    """Start the server, run each case, print a markdown table."""
+def run_served(only: str | None, meshes: bool = False) -> None:
+    """Start the server, run each case, print a markdown table (`meshes`: with the real
+    meshes of `mesh_cases`, about 1 GB of files written first)."""
     port, store = free_port(), tempfile.mkdtemp()
     env = {"VPP_STORE_URL": store, "VPP_QUEUE": "vpp-bench-hostile"}
     proc = start_server(port, env)
@@ -228,6 +310,8 @@ def run_served(only: str | None) -> None:
     try:
         mesh = post(base, "/v1/meshes", multipart_bytes(sample_stl()), MULTIPART).json()["id"]
         table = {**json_cases(mesh), **upload_cases(), **method_cases()}
+        if meshes or (only and "triangles" in only):
+            table |= mesh_cases(write_meshes(store))
         print(f"server RSS at start: {rss_mib(proc.pid):.0f} MiB")
         print("| case | answer | s | slowest /livez s | peak RSS growth MiB | RSS after MiB |")
         print("|---|---|---|---|---|---|")

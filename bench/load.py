@@ -77,7 +77,11 @@ NOOP_S = 0.05
 """A job run shorter than this found its result stored and returned without computing."""
 WAIT_JOBS_S = 300.0
 """Longest wait for the submitted jobs after the load."""
-SMALL_PLAN = {"sensor": {"width_px": 320, "height_px": 200}, "candidates": {"count": 20}}
+SMALL_PLAN = {
+    "sensor": {"width_px": 320, "height_px": 200},
+    "profile": "paper",
+    "candidates": {"count": 20},
+}
 """The plans of the load: 20 candidates of 64,000 px, about a second of work each."""
 BOUNDARY = "vpp-load-boundary"
 MIX = (

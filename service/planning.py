@@ -7,7 +7,6 @@ import re
 from collections.abc import Sequence
 from dataclasses import asdict
 from pathlib import PurePath
-from typing import BinaryIO
 
 from redis import Redis
 from rq import Queue
@@ -22,7 +21,7 @@ from service.models import (
     RelatedPlans,
     StudySubmit,
 )
-from vpp_core.errors import NotFoundError, RegionError, TooLargeError, VppError
+from vpp_core.errors import NotFoundError, RegionError, VppError
 from vpp_core.mesh.part import Part
 from vpp_core.mesh.tessellate import load_part
 from vpp_core.plan.document import PlanRequest
@@ -36,8 +35,6 @@ from worker.settings import Settings
 from worker.store import Store
 from worker.studies import cloud_job, study_job
 
-READ_CHUNK = 1 << 20
-"""Bytes read from an upload at a time."""
 CONTENT_ID = re.compile(r"^[0-9a-f]{64}$")
 """Mesh, plan and job ids are SHA-256 hex digests."""
 
@@ -47,17 +44,6 @@ def content_id(value: str, what: str) -> str:
     if not CONTENT_ID.match(value):
         raise NotFoundError(f"no {what} {value!r}: ids are 64 lowercase hex digits")
     return value
-
-
-def read_upload(file: BinaryIO, max_bytes: int) -> bytes:
-    """The upload's bytes; TooLargeError as soon as they exceed `max_bytes`."""
-    parts, size = [], 0
-    while chunk := file.read(READ_CHUNK):
-        size += len(chunk)
-        if size > max_bytes:
-            raise TooLargeError(f"upload exceeds the limit of {max_bytes} bytes")
-        parts.append(chunk)
-    return b"".join(parts)
 
 
 def upload_mesh(

@@ -48,7 +48,7 @@ def mesh_id(locked: Any) -> str:
 
 def endpoints(mesh: str) -> list[tuple[str, str, dict[str, Any], int]]:
     """(method, path, request kwargs, status with a right key) per endpoint family."""
-    plan = {"mesh_id": mesh, "candidates": {"count": 20}}
+    plan = {"mesh_id": mesh, "profile": "paper", "candidates": {"count": 20}}
     study = {**plan, "kind": "resolution", "resolutions": [0.5, 1.0]}
     upload = {"files": {"file": ("p.stl", sample_stl())}}
     return [

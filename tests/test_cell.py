@@ -204,7 +204,7 @@ def test_api_plan_request_takes_the_objective(api: Any) -> None:
     from vpp_core.samples import sample_stl
 
     mesh = api.post("/v1/meshes", files={"file": ("b.stl", sample_stl())}).json()["id"]
-    body: dict[str, Any] = {"mesh_id": mesh, "candidates": {"count": 20}}
+    body: dict[str, Any] = {"mesh_id": mesh, "profile": "paper", "candidates": {"count": 20}}
     objective = {"name": "cycle_time", "dwell_s": 0.5, "speed_mm_s": 200, "home": [0, 0, 600]}
     r = api.post("/v1/plans", json={**body, "objective": objective})
     assert r.status_code == 202, r.text

@@ -42,7 +42,7 @@ def upload(api: TestClient, who: str) -> Any:
 
 
 def plan(api: TestClient, who: str, mesh: str, count: int) -> Any:
-    body = {"mesh_id": mesh, "sensor": SMALL, "candidates": {"count": count}}
+    body = {"mesh_id": mesh, "sensor": SMALL, "profile": "paper", "candidates": {"count": count}}
     return api.post("/v1/plans", json=body, headers=auth(who))
 
 

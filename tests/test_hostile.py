@@ -226,7 +226,9 @@ def test_the_json_cap_is_a_setting(svc_env: dict[str, str], mesh_id: str) -> Non
 
     with TestClient(create_app(Settings(max_json_bytes=1000))) as small:
         refused(small.post("/v1/plans", content=viewpoints_body(mesh_id, 30)), 413)
-        r = small.post("/v1/plans", json={"mesh_id": mesh_id, "candidates": {"count": 20}})
+        r = small.post(
+            "/v1/plans", json={"mesh_id": mesh_id, "profile": "paper", "candidates": {"count": 20}}
+        )
         assert r.status_code == 202, r.text
 
 

@@ -42,7 +42,12 @@ def mesh_of(client) -> str:
 
 
 def plan_body(mesh: str, seed: int = 0) -> dict[str, Any]:
-    return {"mesh_id": mesh, "sensor": SMALL, "candidates": {"count": 20, "seed": seed}}
+    return {
+        "mesh_id": mesh,
+        "sensor": SMALL,
+        "profile": "paper",
+        "candidates": {"count": 20, "seed": seed},
+    }
 
 
 def records(redis_db) -> list[bytes]:

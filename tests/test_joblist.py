@@ -39,7 +39,7 @@ def upload(api: TestClient, who: str = "a") -> str:
 
 
 def submit(api: TestClient, who: str, mesh: str, count: int) -> str:
-    body = {"mesh_id": mesh, "candidates": {"count": count}}
+    body = {"mesh_id": mesh, "profile": "paper", "candidates": {"count": count}}
     r = api.post("/v1/plans", json=body, headers=auth(who))
     assert r.status_code == 202, r.text
     return str(r.json()["id"])

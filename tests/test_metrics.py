@@ -31,7 +31,9 @@ def test_counts_move_with_a_plan(api: Any, start_workers: Any, svc_env: dict[str
     done = (("kind", "plan"), ("status", "succeeded"))
     assert before.get(("vpp_jobs_submitted_total", tuple(plan.items())), 0) == 0
     mesh = api.post("/v1/meshes", files={"file": ("b.stl", sample_stl())}).json()["id"]
-    job = api.post("/v1/plans", json={"mesh_id": mesh, "candidates": {"count": 20}}).json()["id"]
+    job = api.post(
+        "/v1/plans", json={"mesh_id": mesh, "profile": "paper", "candidates": {"count": 20}}
+    ).json()["id"]
     queued = scrape(api)
     assert queued[("vpp_jobs_submitted_total", tuple(plan.items()))] == 1
     assert queued[("vpp_queue_depth", (("queue", svc_env["VPP_QUEUE"]),))] == 1

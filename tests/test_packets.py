@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import functools
 import math
 import os
+from typing import Any
 
 import numpy as np
 import pytest
@@ -14,6 +16,7 @@ from tests.test_raster import (
     PAPER,
     compare_views,
     embree_ids,
+    reference_ids,
     triangle_soup,
     unexplained,
 )
@@ -66,26 +69,36 @@ def reaches_incidence_limit(part: Part, views: Viewpoints, j: int, face: int) ->
 SHARED = [(r["file"], MANIFEST_UNITS[r["units_guess"]]) for r in manifest_rows()]
 
 
+@functools.lru_cache(maxsize=1)  # one mesh at a time: its Embree 3 and 4 cases run in a row
+def embree_reference(name: str, units: str) -> tuple[Part, Viewpoints, list[np.ndarray], Any]:
+    """A shared mesh, its 20 paper-camera candidates, Embree single rays' first face per pixel
+    of each view (`reference_ids`) and R traced with Embree single rays: what both Embree
+    majors are compared with, computed once for the two."""
+    path = shared_dir(MESHES) / name
+    part = load_mesh(path.read_bytes(), path.suffix, units)
+    views = generate(part, PAPER, GeneratorSettings(count=20, seed=0)).views
+    ids = reference_ids(part, PAPER, views)
+    counts = trace_counts(part, PAPER, views, backend=make_backend(part, "embree")).counts
+    return part, views, ids, counts
+
+
 @pytest.mark.parametrize("major", [3, 4])
 @pytest.mark.parametrize("name, units", SHARED or [("absent", "mm")])
 def test_packets_agree_with_embree_rays_on_shared_meshes(name: str, units: str, major: int) -> None:
-    path = shared_dir(MESHES) / name
-    part = load_mesh(path.read_bytes(), path.suffix, units)
+    part, views, ids, reference = embree_reference(name, units)
     backend = packets(part, major)
-    views = generate(part, PAPER, GeneratorSettings(count=20, seed=0)).views
 
     def ids_of(j: int, window: tuple[int, int, int, int]) -> np.ndarray:
         block = Block(PAPER, views.positions[j], views.rotations()[j], window[:2], window[2:])
         return first_ids(backend, block)
 
-    hits, bad, touched, worst = compare_views(part, PAPER, views, ids_of)
+    hits, bad, touched, worst = compare_views(part, PAPER, views, ids_of, ids)
     assert hits > 0
     if major == 4:  # the very library embreex calls, on the very same rays
         assert bad == 0, f"{bad} of {hits} hit pixels differ from Embree 4 single rays"
     assert bad <= 1e-4 * hits, f"{bad} of {hits} hit pixels differ"
     assert worst < EDGE_PX, f"a disagreement {worst:.2g} px from any edge, and no depth tie"
     counts = trace_counts(part, PAPER, views, backend=backend).counts.toarray().astype(np.int64)
-    reference = trace_counts(part, PAPER, views, backend=make_backend(part, "embree")).counts
     # R differs by the disagreeing pixels above, and by rays at the incidence limit: packets
     # test it on Embree's float32 Ng, the embree backend on the part's normals in float32
     excess = np.maximum(np.abs(counts - reference.toarray()) - touched, 0)

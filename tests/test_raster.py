@@ -115,19 +115,31 @@ IdsOf = Callable[[int, tuple[int, int, int, int]], np.ndarray]
 """A backend's first face per pixel of view j's window, flattened row-major."""
 
 
-def compare_views(
-    part: Part, sensor: Sensor, views: Viewpoints, ids_of: IdsOf
-) -> tuple[int, int, np.ndarray, float]:
-    """ids_of against Embree rays: (hit pixels, disagreeing pixels, (M, N) of those per face
-    and view (either side), largest distance to an edge of a disagreement that is not a depth
-    tie, px)."""
+def reference_ids(part: Part, sensor: Sensor, views: Viewpoints) -> list[np.ndarray]:
+    """Embree's first face per pixel ray of each view's window (`embree_ids`), in view order."""
     embree = EmbreeBackend(part)
+    windows = view_windows(sensor, views, _hull_points(part.vertices))
+    return [embree_ids(embree, sensor, views, j, window) for j, window in enumerate(windows)]
+
+
+def compare_views(
+    part: Part,
+    sensor: Sensor,
+    views: Viewpoints,
+    ids_of: IdsOf,
+    reference: list[np.ndarray] | None = None,
+) -> tuple[int, int, np.ndarray, float]:
+    """ids_of against Embree rays (`reference`: `reference_ids` of the same views, computed
+    here when not given): (hit pixels, disagreeing pixels, (M, N) of those per face and view
+    (either side), largest distance to an edge of a disagreement that is not a depth tie, px)."""
+    if reference is None:
+        reference = reference_ids(part, sensor, views)
     hull = _hull_points(part.vertices)
     hits, bad, worst = 0, 0, 0.0
     touched = np.zeros((part.n_faces + 1, len(views)), dtype=np.int64)  # last row: misses
     for j, window in enumerate(view_windows(sensor, views, hull)):
         a = ids_of(j, window)
-        b = embree_ids(embree, sensor, views, j, window)
+        b = reference[j]
         rep = np.append(part.representative, -1)  # duplicates of a face count as that face
         differ = np.flatnonzero(rep[a] != rep[b])
         hits += int(((a >= 0) | (b >= 0)).sum())

@@ -137,7 +137,7 @@ def test_scene_files_carry_the_plan_and_the_geometry() -> None:
 @pytest.mark.slow
 def test_viewer_resources_through_the_api(api, start_workers, svc_env) -> None:
     mesh = upload_sample(api)
-    body = {"mesh_id": mesh, "sensor": SMALL, "candidates": {"count": 30},
+    body = {"mesh_id": mesh, "sensor": SMALL, "profile": "paper", "candidates": {"count": 30},
             "target": {"resolution_mm": 1.5}}  # fmt: skip
     plan = submit(api, body)
     page = api.get(f"/v1/plans/{plan}/view")  # served at once: it waits for the job itself

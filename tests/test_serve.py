@@ -69,7 +69,9 @@ def test_serve_embedded_plans_and_cleans_up(tmp_path: Path) -> None:
     proc, base = start_serve(tmp_path, 1, log)
     try:
         mesh = call(f"{base}/v1/meshes", *multipart("bushing.stl", sample_stl()))["id"]
-        body = json.dumps({"mesh_id": mesh, "candidates": {"count": 20}}).encode()
+        body = json.dumps(
+            {"mesh_id": mesh, "profile": "paper", "candidates": {"count": 20}}
+        ).encode()
         job = call(f"{base}/v1/plans", body, "application/json")["id"]
         deadline = time.monotonic() + 60
         while (state := call(f"{base}/v1/jobs/{job}"))["status"] in ("queued", "running"):

@@ -153,7 +153,7 @@ def test_plan_refusals_before_any_job(api, redis_db) -> None:
 
 def test_submit_is_202_with_location_and_joins_the_same_job(api, redis_db) -> None:
     mesh = upload(api, sample_stl()).json()["id"]
-    body = {"mesh_id": mesh, "candidates": {"count": 20}}
+    body = {"mesh_id": mesh, "profile": "paper", "candidates": {"count": 20}}
     first = api.post("/v1/plans", json=body)
     assert first.status_code == 202
     job = first.json()

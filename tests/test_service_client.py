@@ -160,7 +160,12 @@ def test_generated_client_plans_the_sample_part(
         # submit: the candidates union takes the generator form; a webhook callback
         receiver = Receiver()
         submit = m.PlanSubmit.from_dict(
-            {"mesh_id": mesh.id, "candidates": {"count": 30}, "target": {"resolution_mm": 0.5}}
+            {
+                "mesh_id": mesh.id,
+                "profile": "paper",
+                "candidates": {"count": 30},
+                "target": {"resolution_mm": 0.5},
+            }
         )
         submit.callback = m.Callback(url=receiver.url, secret=SECRET)
         r = api.submit_plan.sync_detailed(client=client, body=submit)

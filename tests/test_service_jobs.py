@@ -51,6 +51,7 @@ def test_plan_matches_in_process_planner_and_two_workers_share_chunks(api, start
     mesh = upload_sample(api)
     body = {
         "mesh_id": mesh,
+        "profile": "paper",  # chunks and workers, not plan quality: the quick strict cover
         "candidates": {"count": 80, "seed": 3},
         "target": {"resolution_mm": 0.3},
     }
@@ -72,14 +73,11 @@ def test_identical_request_is_answered_from_the_store_and_new_target_reuses_r(
     api, start_workers
 ) -> None:
     mesh = upload_sample(api)
-    # the default stand-off follows the target and the adaptive rounds follow R: both fixed
-    # here, so that another target reuses R and another backend's R gives the same plan (a
-    # strict cover: a partial one may leave out another of two equal faces)
-    body = {
-        "mesh_id": mesh,
-        "candidates": {"count": 60, "standoff_mm": 450, "adaptive": False},
-        "target": {"min_coverage": 1.0},
-    }
+    # the paper profile: its stand-off does not follow the target and it has no adaptive
+    # rounds (the default's follow R), so that another target reuses R and another backend's
+    # R gives the same plan (a strict cover: a partial one may leave out another of two equal
+    # faces); and it is the quick one (reuse, not plan quality, is tested here)
+    body = {"mesh_id": mesh, "profile": "paper", "candidates": {"count": 30}}
     job = submit(api, body)
     start_workers(1)
     first = wait(api, job)
@@ -109,7 +107,7 @@ def test_cancel_stops_a_running_job_and_a_resubmission_resumes(
     api, start_workers, redis_db
 ) -> None:
     mesh = upload_sample(api)
-    body = {"mesh_id": mesh, "candidates": {"count": 600, "seed": 1}}
+    body = {"mesh_id": mesh, "profile": "paper", "candidates": {"count": 600, "seed": 1}}
     job = submit(api, body)
     start_workers(1)
     deadline = time.monotonic() + 60
@@ -139,7 +137,12 @@ def test_a_failed_chunk_fails_the_plan_with_its_reason(api, start_workers, monke
     monkeypatch.setenv("VPP_CHUNK_VIEWS", "200")
     mesh = upload_sample(api)
     big = {"width_px": 3840, "height_px": 2400}  # 200 views of 9 Mpx, one Embree ray per pixel
-    body = {"mesh_id": mesh, "sensor": big, "backend": "embree"}  # on the part: about 7 s
+    body = {
+        "mesh_id": mesh,
+        "sensor": big,
+        "backend": "embree",
+        "profile": "paper",
+    }  # on the part: about 7 s
     job = submit(api, body | {"candidates": {"count": 400, "seed": 2}})
     start_workers(2)
     done = wait(api, job)
@@ -156,7 +159,9 @@ def test_a_job_that_ends_while_its_state_is_read_is_succeeded(api, monkeypatch) 
     # (its document written, then its status set) read as "succeeded, result missing".
     from worker import artifacts, queue
 
-    job = submit(api, {"mesh_id": upload_sample(api), "candidates": {"count": 40}})
+    job = submit(
+        api, {"mesh_id": upload_sample(api), "profile": "paper", "candidates": {"count": 40}}
+    )
     real = queue._status
 
     def ends_now(rq_job):  # the worker writes the document and finishes as we look
@@ -185,7 +190,7 @@ def test_workers_share_an_s3_store(svc_env, s3_endpoint, monkeypatch, start_work
     with TestClient(create_app(Settings())) as api:
         assert api.get("/readyz").json()["checks"]["store"] == "ok"
         mesh = upload_sample(api)
-        job = submit(api, {"mesh_id": mesh, "candidates": {"count": 40}})
+        job = submit(api, {"mesh_id": mesh, "profile": "paper", "candidates": {"count": 40}})
         start_workers(2)
         done = wait(api, job)
         assert done["status"] == "succeeded", done
@@ -200,7 +205,9 @@ def test_bad_meshes_that_upload_plan_to_an_end(api, start_workers) -> None:
         r = api.post("/v1/meshes", files={"file": (path.name, path.read_bytes())})
         assert r.status_code < 500, (path.name, r.text)
         if r.status_code == 201:
-            jobs[path.name] = submit(api, {"mesh_id": r.json()["id"], "candidates": {"count": 10}})
+            jobs[path.name] = submit(
+                api, {"mesh_id": r.json()["id"], "profile": "paper", "candidates": {"count": 10}}
+            )
     assert jobs, "no bad mesh was accepted: nothing to plan"
     start_workers(2)
     for name, job in jobs.items():

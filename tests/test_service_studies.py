@@ -25,6 +25,7 @@ def test_resolution_study_job_serves_json_csv_and_plots(api, start_workers) -> N
         "kind": "resolution",
         "resolutions": [1.2, 2.5],
         "sensor": SMALL,
+        "profile": "paper",
         "candidates": {"count": 40},
     }
     r = api.post("/v1/studies", json=body)
@@ -39,7 +40,9 @@ def test_resolution_study_job_serves_json_csv_and_plots(api, start_workers) -> N
     doc = api.get(f"/v1/studies/{study}").json()
     assert doc["kind"] == "resolution" and len(doc["rows"]) == 4
     # the same rows as the study run in-process
-    request = PlanRequest.model_validate({"sensor": SMALL, "candidates": {"count": 40}})
+    request = PlanRequest.model_validate(
+        {"sensor": SMALL, "profile": "paper", "candidates": {"count": 40}}
+    )
     local = resolution_sweep(load_mesh(sample_stl(), "stl"), request, [1.2, 2.5])
     assert [r["viewpoints"] for r in doc["rows"]] == [r.viewpoints for r in local.rows]
     csv = api.get(f"/v1/studies/{study}/rows.csv")
@@ -55,8 +58,8 @@ def test_resolution_study_job_serves_json_csv_and_plots(api, start_workers) -> N
 
 def test_plan_plots_and_point_cloud(api, start_workers) -> None:
     mesh = upload_sample(api)
-    plan = submit(api, {"mesh_id": mesh, "sensor": SMALL, "candidates": {"count": 30},
-                        "target": {"resolution_mm": 1.5}})  # fmt: skip
+    plan = submit(api, {"mesh_id": mesh, "sensor": SMALL, "profile": "paper",
+                        "candidates": {"count": 30}, "target": {"resolution_mm": 1.5}})  # fmt: skip
     start_workers(1)
     assert wait(api, plan)["status"] == "succeeded"
     for name in ("histogram.png", "cameras.png"):

@@ -111,7 +111,7 @@ class Page:
 def planned(client: Any, formulation: str = "density") -> tuple[str, str, dict[str, Any]]:
     """(mesh id, plan id, plan document) of the sample part, computed by the worker."""
     mesh = upload_sample(client)
-    body = {"mesh_id": mesh, "sensor": SENSOR, "candidates": {"count": 40},
+    body = {"mesh_id": mesh, "sensor": SENSOR, "profile": "paper", "candidates": {"count": 40},
             "target": {"resolution_mm": 1.0, "formulation": formulation}}  # fmt: skip
     plan = submit(client, body)
     assert wait(client, plan)["status"] == "succeeded"
@@ -461,7 +461,7 @@ def test_colours_spread_over_the_plans_range_and_problems_only_pales_the_rest(
     from the finest to the coarsest r*; *problems only* pales exactly the met faces."""
     client, url = live
     mesh = upload_sample(client)
-    body = {"mesh_id": mesh, "sensor": SENSOR, "candidates": {"count": 40},
+    body = {"mesh_id": mesh, "sensor": SENSOR, "profile": "paper", "candidates": {"count": 40},
             "target": {"resolution_mm": 5.0, "formulation": "visibility"}}  # fmt: skip
     plan = submit(client, body)
     assert wait(client, plan)["status"] == "succeeded"

@@ -72,7 +72,7 @@ def private_ok(svc_env: dict[str, str], monkeypatch: pytest.MonkeyPatch) -> dict
 
 
 def plan_body(mesh: str, count: int = 20, **extra: Any) -> dict[str, Any]:
-    return {"mesh_id": mesh, "candidates": {"count": count}, **extra}
+    return {"mesh_id": mesh, "profile": "paper", "candidates": {"count": count}, **extra}
 
 
 def upload(client: httpx.Client) -> str:

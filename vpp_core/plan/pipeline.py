@@ -17,7 +17,14 @@ from vpp_core.candidates.generator import GeneratorSettings, generate
 from vpp_core.cell.geometry import Cell, resolve
 from vpp_core.cover.density import CoverModel, cover_model, meets, patch_resolution, stray_free
 from vpp_core.cover.partial import PartialCover, solve_partial
-from vpp_core.cover.patches import SMOOTH_TARGETS, Patches, make_patches, patch_edge
+from vpp_core.cover.patches import (
+    MAX_PATCHES,
+    MIN_PATCH_TARGETS,
+    SMOOTH_TARGETS,
+    Patches,
+    make_patches,
+    patch_edge,
+)
 from vpp_core.errors import LimitError
 from vpp_core.mesh.part import Part
 from vpp_core.plan.adaptive import adapt
@@ -443,8 +450,19 @@ def _patches(part: Part, edge_mm: float, smooth_mm: float, targets: FaceTargets 
     groups = targets.groups()
     area = float(part.areas[part.counted].sum())
     first = np.unique(groups, return_index=True)[1]
-    edges = np.array([patch_edge(targets.resolution_mm[f], area) for f in first])
+    edges = np.array([_region_edge(targets, f, area) for f in first])
     return make_patches(*args, groups=groups, group_edges=edges)
+
+
+def _region_edge(targets: FaceTargets, face: int, area_mm2: float) -> float:
+    """Patch edge (mm) of the group of `face`: the default target's patch_edge; a region with
+    its own target the smallest patches, MIN_PATCH_TARGETS · r̄ (its target is met face by
+    face about as well as patches allow: plate_holes' bore at 0.1 mm on 32 r̄ patches was met
+    on 90 % of its area, on 5 r̄ patches on 100 %), within MAX_PATCHES."""
+    r = float(targets.resolution_mm[face])
+    if targets.region[face] < 0:
+        return patch_edge(r, area_mm2)
+    return float(max(MIN_PATCH_TARGETS * r, np.sqrt(area_mm2 / MAX_PATCHES)))
 
 
 def targets_of(part: Part, request: PlanRequest) -> FaceTargets:

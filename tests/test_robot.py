@@ -242,3 +242,23 @@ def test_turntable_angles_reproduce_the_pose() -> None:
     )
     out = turntable_solve(spec, part_to_cell, np.concatenate([high, tilted]))
     assert [REASONS[r] for r in out.reason] == ["joint_limit", "no_ik"]
+
+
+def test_folded_elbow_is_a_self_collision_and_the_camera_body_counts() -> None:
+    robot = load_robot(RobotSpec(name="ur5", camera_box_mm=[60, 60, 150]))
+    checker = Checker(robot, Scene())
+    folded = np.array([0.0, -1.57, 3.1, 0.0, 0.0, 0.0])  # forearm back onto the upper arm
+    bent = np.array([0.0, -1.57, 1.57, 0.0, 0.0, 0.0])
+    assert checker.colliding(np.stack([folded, bent])).tolist() == [True, False]
+    # a block 100 mm behind the optical centre (camera 200 mm in front of the flange): only the
+    # camera's body (150 mm deep) reaches it
+    text, tip, _ = arm_urdf("ur5")
+    mount = np.eye(4)
+    mount[2, 3] = 200.0
+    camera = urdf_fk(text, tip, bent) @ mount
+    block = trimesh.creation.box([20, 20, 20])
+    block.apply_translation(camera[:3, 3] - 100.0 * camera[:3, 2])
+    scene = Scene([(block.vertices, block.faces)])
+    for box, hit in (([60, 60, 150], True), (None, False)):
+        spec = RobotSpec(name="ur5", flange_to_camera=mount.tolist(), camera_box_mm=box)
+        assert Checker(load_robot(spec), scene).colliding(bent[None])[0] == hit

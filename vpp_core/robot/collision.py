@@ -114,7 +114,8 @@ def _capsule(start: np.ndarray, end: np.ndarray, radius: float) -> Geometry:
 
 
 def link_shapes(robot: Robot) -> list[list[Shape]]:
-    """Per link (root first) its collision shapes; capsules where the URDF gives none."""
+    """Per link (root first) its collision shapes; capsules where the URDF gives none; the
+    camera's body (`camera_box_mm`) on the last link."""
     chain = robot.chain
     out = []
     for i, geoms in enumerate(chain.geometry):
@@ -122,6 +123,12 @@ def link_shapes(robot: Robot) -> list[list[Shape]]:
             end = chain.origins[i][:3, 3] if i < chain.n else chain.tip[:3, 3]
             geoms = [_capsule(np.zeros(3), end, robot.spec.link_radius_mm)]
         out.append([_shape(g) for g in geoms])
+    if robot.spec.camera_box_mm is not None:
+        w, h, d = robot.spec.camera_box_mm
+        behind = np.eye(4)
+        behind[2, 3] = -d / 2  # the body runs from the optical centre back along -z
+        origin = chain.tip @ robot.flange_to_camera @ behind
+        out[-1].append(_shape(Geometry("box", origin, (w, h, d))))
     return out
 
 
@@ -146,6 +153,60 @@ class Checker:
         self.manager = fcl.DynamicAABBTreeCollisionManager()
         self.manager.registerObjects(self.scene_objects)
         self.manager.setup()
+        self.parts = [
+            (link, s, fcl.CollisionObject(s.geometry, fcl.Transform()))
+            for link, shapes in enumerate(self.shapes)
+            for s in shapes
+        ]
+        self.pairs = self._self_pairs()
+
+    def _place(self, frames: np.ndarray) -> None:
+        """Move the self-collision objects to one configuration's link frames (n + 1, 4, 4)."""
+        import fcl
+
+        for link, s, obj in self.parts:
+            t = frames[link] @ s.origin
+            obj.setTransform(fcl.Transform(t[:3, :3], t[:3, 3]))
+
+    def _self_pairs(self) -> list[tuple[int, int]]:
+        """Shape pairs checked against each other: of links at least two joints apart, and
+        not touching at the zero configuration (clipped into the limits), as MoveIt's setup
+        assistant disables pairs that are adjacent or in contact by default."""
+        import fcl
+
+        zero = np.clip(np.zeros(self.robot.n), self.robot.lower, self.robot.upper)
+        self._place(link_frames(self.robot.chain, zero[None])[0])
+        pairs = []
+        for a, (la, _, oa) in enumerate(self.parts):
+            for b, (lb, _, ob) in enumerate(self.parts[a + 1 :], start=a + 1):
+                if abs(lb - la) <= 1:
+                    continue
+                if not fcl.collide(oa, ob, fcl.CollisionRequest(), fcl.CollisionResult()):
+                    pairs.append((a, b))
+        return pairs
+
+    def self_hits(self, q: np.ndarray, links: range | None = None) -> np.ndarray:
+        """(N,) whether two links (one of them in `links`; default all) touch each other."""
+        import fcl
+
+        q = np.atleast_2d(q)
+        out = np.zeros(len(q), dtype=bool)
+        pairs = [
+            (a, b)
+            for a, b in self.pairs
+            if links is None or self.parts[a][0] in links or self.parts[b][0] in links
+        ]
+        if not pairs:
+            return out
+        frames = link_frames(self.robot.chain, q)
+        request = fcl.CollisionRequest()
+        for i in range(len(q)):
+            self._place(frames[i])
+            out[i] = any(
+                fcl.collide(self.parts[a][2], self.parts[b][2], request, fcl.CollisionResult())
+                for a, b in pairs
+            )
+        return out
 
     def frames(self, q: np.ndarray) -> np.ndarray:
         """(N, n + 1, 4, 4) link frames in the cell at joint vectors q (N, n)."""
@@ -211,11 +272,11 @@ class Checker:
         return np.asarray(hit.reshape(len(q), -1).any(axis=1))
 
     def colliding(self, q: np.ndarray, links: range | None = None) -> np.ndarray:
-        """(N,) whether the arm (its `links`; default all) at q (N, n) touches the floor or a
-        scene mesh, or has a link inside a closed one."""
+        """(N,) whether the arm (its `links`; default all) at q (N, n) touches the floor, a
+        scene mesh or itself, or has a link inside a closed scene mesh."""
         q = np.atleast_2d(q)
         hit = self.floor_hits(q, links)
-        for test in (self.mesh_hits, self.inside):
+        for test in (self.mesh_hits, self.inside, self.self_hits):
             rest = ~hit
             if rest.any():
                 hit[rest] = test(q[rest], links)

@@ -71,6 +71,14 @@ class RobotSpec(BaseModel):
     link_radius_mm: float = Field(
         50.0, gt=0, le=1000, description="capsule radius of links without collision geometry"
     )
+    camera_box_mm: (
+        Annotated[list[Annotated[float, Field(gt=0, le=5000)]], Field(min_length=3, max_length=3)]
+        | None
+    ) = Field(
+        None,
+        description="the camera's body [width, height, depth] mm, from its optical centre back "
+        "(-z): checked like a link; none: the camera is not in the collision model",
+    )
     path_step_deg: float = Field(
         2.0, ge=0, le=90, description="joint step of the sampled path check (0: no check)"
     )

@@ -147,6 +147,11 @@ def main() -> None:
     ap.add_argument("--arms", default="ur5,panda")
     args = ap.parse_args()
     print(json.dumps({"uptime": os.popen("uptime").read().strip()}))
+    t0 = time.perf_counter()
+    import fcl  # noqa: F401
+    import roboticstoolbox  # noqa: F401
+
+    print(json.dumps({"import_roboticstoolbox_fcl_s": round(time.perf_counter() - t0, 2)}))
     for name in args.arms.split(","):
         robot = load_robot(RobotSpec(name=name))  # type: ignore[arg-type]
         q_true, poses = targets(robot, args.ik_poses)

@@ -185,12 +185,12 @@ class Checker:
                     pairs.append((a, b))
         return pairs
 
-    def self_hits(self, q: np.ndarray, links: range | None = None) -> np.ndarray:
-        """(N,) whether two links (one of them in `links`; default all) touch each other."""
+    def self_hits(self, frames: np.ndarray, links: range | None = None) -> np.ndarray:
+        """(N,) whether two links (one of them in `links`; default all) touch each other, at
+        link frames (N, n + 1, 4, 4)."""
         import fcl
 
-        q = np.atleast_2d(q)
-        out = np.zeros(len(q), dtype=bool)
+        out = np.zeros(len(frames), dtype=bool)
         pairs = [
             (a, b)
             for a, b in self.pairs
@@ -198,9 +198,8 @@ class Checker:
         ]
         if not pairs:
             return out
-        frames = link_frames(self.robot.chain, q)
         request = fcl.CollisionRequest()
-        for i in range(len(q)):
+        for i in range(len(frames)):
             self._place(frames[i])
             out[i] = any(
                 fcl.collide(self.parts[a][2], self.parts[b][2], request, fcl.CollisionResult())
@@ -212,14 +211,12 @@ class Checker:
         """(N, n + 1, 4, 4) link frames in the cell at joint vectors q (N, n)."""
         return np.asarray(self.robot.base_to_cell @ link_frames(self.robot.chain, q))
 
-    def floor_hits(self, q: np.ndarray, links: range | None = None) -> np.ndarray:
-        """(N,) whether a link (of `links`; default all) dips below the floor; the root and
-        the first moving link are never checked against it."""
-        q = np.atleast_2d(q)
+    def floor_hits(self, frames: np.ndarray, links: range | None = None) -> np.ndarray:
+        """(N,) whether a link (of `links`; default all) dips below the floor, at cell-frame
+        link frames (N, n + 1, 4, 4); the root and first moving link are not checked."""
         if self.scene.floor_z is None:
-            return np.zeros(len(q), dtype=bool)
-        frames = self.frames(q)
-        low = np.full(len(q), np.inf)
+            return np.zeros(len(frames), dtype=bool)
+        low = np.full(len(frames), np.inf)
         for link, shapes in enumerate(self.shapes):
             if link < 2 or (links is not None and link not in links):
                 continue
@@ -229,18 +226,17 @@ class Checker:
                 low = np.minimum(low, z.min(axis=1) - s.radius)
         return np.asarray(low < self.scene.floor_z)
 
-    def mesh_hits(self, q: np.ndarray, links: range | None = None) -> np.ndarray:
+    def mesh_hits(self, frames: np.ndarray, links: range | None = None) -> np.ndarray:
         """(N,) whether a link (of `links`; default all) touches one of the scene's meshes
-        (fcl: each link shape against the scene's AABB tree, first hit ends)."""
+        (fcl: each link shape against the scene's AABB tree, first hit ends), at cell-frame
+        link frames (N, n + 1, 4, 4)."""
         import fcl
 
-        q = np.atleast_2d(q)
-        out = np.zeros(len(q), dtype=bool)
+        out = np.zeros(len(frames), dtype=bool)
         if not self.scene_objects:
             return out
-        frames = self.frames(q)
         request = fcl.CollisionRequest()
-        for i in range(len(q)):
+        for i in range(len(frames)):
             for link, s, obj in self.objects:
                 if links is not None and link not in links:
                     continue
@@ -253,13 +249,12 @@ class Checker:
                     break
         return out
 
-    def inside(self, q: np.ndarray, links: range | None = None) -> np.ndarray:
+    def inside(self, frames: np.ndarray, links: range | None = None) -> np.ndarray:
         """(N,) whether a link shape's centre lies inside a closed scene mesh (a link wholly
-        inside a solid touches none of its triangles, which is all fcl tests)."""
-        q = np.atleast_2d(q)
+        inside a solid touches none of its triangles, which is all fcl tests), at cell-frame
+        link frames (N, n + 1, 4, 4)."""
         if not self.solids:
-            return np.zeros(len(q), dtype=bool)
-        frames = self.frames(q)
+            return np.zeros(len(frames), dtype=bool)
         centres = [
             (frames[:, link] @ s.origin)[:, :3, 3]
             for link, s, _ in self.objects
@@ -269,17 +264,17 @@ class Checker:
         hit = np.zeros(len(points), dtype=bool)
         for solid in self.solids:
             hit |= solid.contains(points)
-        return np.asarray(hit.reshape(len(q), -1).any(axis=1))
+        return np.asarray(hit.reshape(len(frames), -1).any(axis=1))
 
     def colliding(self, q: np.ndarray, links: range | None = None) -> np.ndarray:
         """(N,) whether the arm (its `links`; default all) at q (N, n) touches the floor, a
         scene mesh or itself, or has a link inside a closed scene mesh."""
-        q = np.atleast_2d(q)
-        hit = self.floor_hits(q, links)
+        frames = self.frames(np.atleast_2d(q))
+        hit = self.floor_hits(frames, links)
         for test in (self.mesh_hits, self.inside, self.self_hits):
             rest = ~hit
             if rest.any():
-                hit[rest] = test(q[rest], links)
+                hit[rest] = test(frames[rest], links)
         return hit
 
     def which(self, q: np.ndarray) -> list[str]:
@@ -289,7 +284,7 @@ class Checker:
         frames = self.frames(q[None])[0]
         names = self.robot.chain.links
         hits = set()
-        if self.floor_hits(q[None])[0] and self.scene.floor_z is not None:
+        if self.floor_hits(frames[None])[0] and self.scene.floor_z is not None:
             for link, shapes in enumerate(self.shapes[2:], start=2):
                 for s in shapes:
                     t = frames[link] @ s.origin

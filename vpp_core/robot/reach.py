@@ -173,7 +173,7 @@ class _Solver:
                 continue
             near = kin.into_limits(self.robot, q, start)
             q = q if near is None else near
-            if not any(np.allclose(q, o, atol=1e-4) for o in out):
+            if not any(np.abs(q - o).max() < 1e-4 for o in out):
                 out.append(q)
                 yield q
 

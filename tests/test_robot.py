@@ -262,3 +262,42 @@ def test_folded_elbow_is_a_self_collision_and_the_camera_body_counts() -> None:
     for box, hit in (([60, 60, 150], True), (None, False)):
         spec = RobotSpec(name="ur5", flange_to_camera=mount.tolist(), camera_box_mm=box)
         assert Checker(load_robot(spec), scene).colliding(bent[None])[0] == hit
+
+
+def test_plan_gate_rolls_reports_joints_and_a_joint_space_tour() -> None:
+    from vpp_core.camera.pose import make_viewpoints
+    from vpp_core.errors import ViewpointError
+    from vpp_core.plan.robotplan import RobotGate
+
+    part_to_cell = np.asarray(rigid(Rotation.from_euler("z", 90, degrees=True), [400.0, 0, 50]))
+    limits = [[-360, 360]] * 5 + [[-10, 10]]  # wrist 3 nearly fixed: views must roll
+    spec = RobotSpec(
+        name="ur5", roll_free_deg=90, roll_steps=37, joint_limits=limits,
+        home_deg=[0, -90, 90, -90, -90, 0],
+    )  # fmt: skip
+    gate = RobotGate(spec, None, part_to_cell, Scene(floor_z=0.0))
+    cams = poses_around(np.zeros(3), 8, seed=4)  # part frame: around the part's origin
+    cams[0, :3, 3] = [0.0, 0.0, -300.0]  # under the floor once placed (cell z = -250)
+    views = make_viewpoints(cams[:, :3, 3], cams[:, :3, 2], -cams[:, :3, 1])
+    kept, idx = gate.filter(views)
+    assert 0 not in idx and len(idx) >= 4
+    turned = np.degrees(np.arccos(np.clip((kept.ups * views.ups[idx]).sum(axis=1), -1, 1)))
+    assert (turned > 1).sum() >= 2  # rolled views carry their new up
+    text, tip, _ = arm_urdf("ur5")
+    joints = gate.joints_deg(kept)
+    for k in range(len(kept)):
+        got = urdf_fk(text, tip, np.radians(joints[k]))
+        want = part_to_cell @ kept.camera_to_world()[k]
+        assert np.abs(got - want).max() < 1e-3  # the traced (rolled) pose is the arm's
+    out = gate.report([int(i) for i in idx], kept, dwell_s=0.5)
+    assert out.dropped["collision"] + out.dropped["no_ik"] >= 1 and out.checked == 8
+    tour = out.tour
+    assert tour is not None and sorted(tour.order) == sorted(int(i) for i in idx)
+    speed = np.degrees(gate.speeds())
+    path = [np.asarray(spec.home_deg)] + [joints[list(idx).index(i)] for i in tour.order]
+    path.append(np.asarray(spec.home_deg))
+    legs = [np.max(np.abs(b - a) / speed) for a, b in zip(path[:-1], path[1:], strict=True)]
+    assert tour.travel_s == pytest.approx(sum(legs), abs=1e-3)
+    assert tour.cycle_time_s == pytest.approx(0.5 * len(idx) + sum(legs), abs=1e-3)
+    with pytest.raises(ViewpointError, match="viewpoint 0 .*collision|viewpoint 0 .*no_ik"):
+        gate.check_explicit(views)

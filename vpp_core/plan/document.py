@@ -13,6 +13,7 @@ from vpp_core.plan.cycle import Objective, TourOut
 from vpp_core.plan.diagnostics import Diagnostics
 from vpp_core.plan.metrics import Metrics
 from vpp_core.plan.regions import Region, check_regions, finest
+from vpp_core.plan.robotdoc import RobotOut
 from vpp_core.trace.rays import DEFAULT_BACKEND, BackendName
 
 Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
@@ -249,6 +250,9 @@ class ViewpointOut(CandidateOut):
 
     camera_to_world: list[list[float]]
     cell: CellPose | None = Field(None, description="the pose in the cell frame (with a setup)")
+    joints: list[float] | None = None
+    """With a robot or turntable in the setup: its joint values at this view (deg; mm for
+    prismatic joints; a turntable's table angle, linear axis offset and camera roll)."""
 
 
 class CandidateInfo(BaseModel):
@@ -423,5 +427,7 @@ class PlanDocument(BaseModel):
     adaptive: list[AdaptiveRound] = []
     partial: PartialInfo | None = None
     diagnostics: Diagnostics | None = None
+    robot: RobotOut | None = None
+    """With a robot or turntable in the setup: what its reach dropped and its joint tour."""
     rays: RaysInfo
     timings_s: Timings

@@ -79,6 +79,9 @@ class RobotSpec(BaseModel):
         description="the camera's body [width, height, depth] mm, from its optical centre back "
         "(-z): checked like a link; none: the camera is not in the collision model",
     )
+    home_deg: list[float] | None = Field(
+        None, description="start and end joint vector of the tour, deg (mm); none: open path"
+    )
     path_step_deg: float = Field(
         2.0, ge=0, le=90, description="joint step of the sampled path check (0: no check)"
     )
@@ -187,6 +190,8 @@ def load_robot(spec: RobotSpec) -> Robot:
     if spec.joint_limits is not None:
         _count(spec.joint_limits, chain, "joint_limits")
         lower, upper = (np.asarray(spec.joint_limits, dtype=np.float64) * unit[:, None]).T
+    if spec.home_deg is not None:
+        _count(spec.home_deg, chain, "home_deg")
     if spec.joint_speeds is not None:
         _count(spec.joint_speeds, chain, "joint_speeds")
         speed = np.asarray(spec.joint_speeds, dtype=np.float64) * unit

@@ -1,0 +1,238 @@
+"""The robot (or turntable) of a setup in a plan: which camera poses it can take, the joint
+values of the chosen views, and the visiting order in joint space (issue 36, docs/robot.md).
+
+A `RobotGate` is made once per plan from the robot spec, the part in the cell and the
+collision scene. Every source of candidates asks it before tracing: the generator and its
+retries (`allowed`, a predicate on positions and gazes), the generated pool and the adaptive
+rounds (`filter`: unreachable poses dropped, reachable ones turned to the roll the arm takes),
+explicit viewpoints (`check_explicit`: a ViewpointError naming the viewpoint and the reason).
+Results are kept per pose, so a pose is solved once per plan; `annotate` writes the joint
+values of the selected views, what was dropped and why, and the joint-space tour.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import Counter
+
+import numpy as np
+
+from vpp_core.camera.pose import Viewpoints, make_viewpoints
+from vpp_core.errors import ViewpointError
+from vpp_core.plan.robotdoc import PathViolation, RobotOut, RobotTourOut
+from vpp_core.plan.route import solve_route
+from vpp_core.robot.collision import Checker, Scene
+from vpp_core.robot.jointtour import joint_tour, path_violations
+from vpp_core.robot.model import Robot, RobotSpec, TurntableSpec, load_robot
+from vpp_core.robot.reach import REASONS, reachability
+from vpp_core.robot.turntable import turntable_solve
+
+Found = tuple[int, np.ndarray | None, float]
+"""(reason index, joint vector in rad/mm or None, roll deg) of one pose."""
+
+
+def pose_key(camera_to_part: np.ndarray) -> bytes:
+    """Cache key of a 4x4 pose: its entries rounded to 1e-6."""
+    return bytes(np.round(np.asarray(camera_to_part, dtype=np.float64), 6).tobytes())
+
+
+def rolled(views: Viewpoints, roll_deg: np.ndarray) -> Viewpoints:
+    """The views turned about their gazes by roll_deg (camera · Rz(roll)): up' = cos·up +
+    sin·x, x the image's right (x = -up × gaze)."""
+    a = np.radians(np.nan_to_num(roll_deg))[:, None]
+    x = np.cross(-views.ups, views.gazes)
+    return make_viewpoints(views.positions, views.gazes, np.cos(a) * views.ups + np.sin(a) * x)
+
+
+class RobotGate:
+    """A robot or turntable of a setup, with the part placed in its cell (mm)."""
+
+    def __init__(
+        self,
+        robot: RobotSpec | None,
+        turntable: TurntableSpec | None,
+        part_to_cell: np.ndarray,
+        scene: Scene,
+    ) -> None:
+        self.spec, self.table = robot, turntable
+        self.part_to_cell = np.asarray(part_to_cell, dtype=np.float64)
+        self.scene = scene
+        self.robot: Robot | None = load_robot(robot) if robot is not None else None
+        self._checker: Checker | None = None
+        self.found: dict[bytes, Found] = {}
+        self.dropped: Counter[str] = Counter()
+        self.seconds = 0.0
+        self.checked = 0
+
+    @property
+    def checker(self) -> Checker:
+        """The collision checker of the arm in the scene (built on first use)."""
+        if self._checker is None:
+            assert self.robot is not None
+            self._checker = Checker(self.robot, self.scene)
+        return self._checker
+
+    def solve(self, camera_to_part: np.ndarray) -> list[Found]:
+        """Reach of (N, 4, 4) part-frame camera poses, solved once per pose and plan."""
+        keys = [pose_key(m) for m in camera_to_part]
+        todo = [i for i, k in enumerate(keys) if k not in self.found]
+        if todo:
+            start = time.perf_counter()
+            self.checked += len(todo)
+            for i, found in zip(todo, self._compute(camera_to_part[todo]), strict=True):
+                self.found[keys[i]] = found
+                if found[0]:
+                    self.dropped[REASONS[found[0]]] += 1
+            self.seconds += time.perf_counter() - start
+        return [self.found[k] for k in keys]
+
+    def _compute(self, camera_to_part: np.ndarray) -> list[Found]:
+        """Reach of poses not solved yet: the arm's IK and collisions, or the turntable."""
+        if self.robot is not None:
+            r = reachability(self.robot, self.scene, self.part_to_cell @ camera_to_part)
+            return [
+                (int(r.reason[i]), r.joints[i], float(r.roll_deg[i])) for i in range(len(r.reason))
+            ]
+        assert self.table is not None
+        t = turntable_solve(self.table, self.part_to_cell, camera_to_part)
+        # the fixed camera turns by the roll itself: the pose is met exactly, nothing to roll
+        joints = np.column_stack([np.radians(t.angle_deg), t.offset_mm, np.radians(t.roll_deg)])
+        return [(int(t.reason[i]), joints[i], 0.0) for i in range(len(t.reason))]
+
+    def allowed(self, positions: np.ndarray, gazes: np.ndarray) -> np.ndarray:
+        """(k,) bool: the carrier reaches a camera at each position looking along each gaze
+        (part frame, default up, any roll it may take)."""
+        if not len(positions):
+            return np.zeros(0, dtype=bool)
+        views = make_viewpoints(positions, gazes)
+        return np.array([f[0] == 0 for f in self.solve(views.camera_to_world())])
+
+    def filter(self, views: Viewpoints) -> tuple[Viewpoints, np.ndarray]:
+        """(the reachable views turned to their rolls, their indices into `views`)."""
+        found = self.solve(views.camera_to_world())
+        keep = np.array([f[0] == 0 for f in found], dtype=bool)
+        idx = np.flatnonzero(keep)
+        out = rolled(views.take(idx), np.array([found[i][2] for i in idx]))
+        for i, m in zip(idx, out.camera_to_world(), strict=True):
+            self.found[pose_key(m)] = (0, found[i][1], 0.0)
+        return out, idx
+
+    def check_explicit(self, views: Viewpoints) -> None:
+        """ViewpointError naming the first explicit viewpoint the carrier cannot take as given
+        (an arm's roll freedom is not used: an explicit pose is not turned) and why."""
+        if self.robot is not None and self.robot.spec.roll_free_deg:
+            spec = self.robot.spec.model_copy(update={"roll_free_deg": 0.0})
+            exact = RobotGate(spec, None, self.part_to_cell, self.scene)
+            exact._checker = self._checker
+            found = exact.solve(views.camera_to_world())
+            self.found.update(exact.found)
+            self.dropped.update(exact.dropped)
+            self.checked += exact.checked
+        else:
+            found = self.solve(views.camera_to_world())
+        for i, f in enumerate(found):
+            if f[0]:
+                why = REASONS[f[0]]
+                raise ViewpointError(
+                    f"viewpoint {i} at {np.round(views.positions[i], 3).tolist()} (part frame, "
+                    f"mm): the {self.name()} cannot take it ({why})"
+                )
+
+    def name(self) -> str:
+        """The bundled arm's name, `urdf` or `turntable`."""
+        if self.spec is None:
+            return "turntable"
+        return self.spec.name or "urdf"
+
+    def joints_deg(self, views: Viewpoints) -> np.ndarray:
+        """(K, n) joint values (deg, mm) of views the gate passed (NaN where unknown)."""
+        found = self.solve(views.camera_to_world())
+        n = self.robot.n if self.robot is not None else 3
+        out = np.full((len(views), n), np.nan)
+        for i, f in enumerate(found):
+            if f[1] is not None and not f[0]:
+                out[i] = self._to_deg(f[1])
+        return out
+
+    def _to_deg(self, q: np.ndarray) -> np.ndarray:
+        """Joint values in the document's units (deg for revolute, mm for prismatic)."""
+        if self.robot is None:
+            return np.array([np.degrees(q[0]), q[1], np.degrees(q[2])])
+        return np.where(self.robot.chain.prismatic, q, np.degrees(q))
+
+    def describe(self) -> tuple[list[str], list[str]]:
+        """(joint names, units)."""
+        if self.robot is None:
+            return ["table", "linear_axis", "camera_roll"], ["deg", "mm", "deg"]
+        units = ["mm" if p else "deg" for p in self.robot.chain.prismatic]
+        return list(self.robot.chain.names), units
+
+    def speeds(self) -> np.ndarray:
+        """Per joint speed limit (rad/s, mm/s)."""
+        if self.robot is not None:
+            return self.robot.speed
+        assert self.table is not None
+        linear = self.table.linear_axis.speed_mm_s if self.table.linear_axis else 1.0
+        turn = np.radians(self.table.speed_deg_s)
+        return np.array([turn, linear, turn])
+
+    def home(self) -> np.ndarray | None:
+        """The home joint vector (rad, mm), or None."""
+        if self.spec is None or self.spec.home_deg is None or self.robot is None:
+            return None
+        return np.where(
+            self.robot.chain.prismatic, self.spec.home_deg, np.radians(self.spec.home_deg)
+        )
+
+    def report(self, ids: list[int], views: Viewpoints, dwell_s: float) -> RobotOut:
+        """The document's `robot`: drops, key, and the joint-space tour of `views` (the
+        selected ones, candidate `ids`)."""
+        names, units = self.describe()
+        tour = self._tour(ids, views, dwell_s) if len(views) else None
+        key = self.spec.key() if self.spec is not None else self.table.model_dump_json()  # type: ignore[union-attr]
+        return RobotOut(
+            kind="arm" if self.robot is not None else "turntable",
+            name=self.name(),
+            joints=names,
+            units=units,
+            checked=self.checked,
+            dropped={r: int(self.dropped[r]) for r in REASONS[1:]},
+            key=_hash(key + self.scene.key()),
+            seconds=round(self.seconds, 3),
+            tour=tour,
+        )
+
+    def _tour(self, ids: list[int], views: Viewpoints, dwell_s: float) -> RobotTourOut:
+        """Visiting order by joint-space travel time, from and to home, and its path check."""
+        found = self.solve(views.camera_to_world())
+        q = np.array([f[1] for f in found], dtype=np.float64)
+        home = self.home()
+        tour = joint_tour(q, self.speeds(), home, solve_route)
+        step = 0.0 if self.spec is None else self.spec.path_step_deg
+        bad: list[PathViolation] = []
+        if self.robot is not None and step > 0:
+            ordered = [ids[i] for i in tour.order]
+            for v in path_violations(self.checker, q[tour.order], np.radians(step), home):
+                a, b = int(v["from"]), int(v["to"])  # type: ignore[call-overload]
+                bad.append(PathViolation(
+                    leg=int(v["leg"]), from_id=ordered[a] if a >= 0 else None,  # type: ignore[call-overload]
+                    to_id=ordered[b] if b >= 0 else None, at=float(v["at"]),  # type: ignore[arg-type]
+                ))  # fmt: skip
+        return RobotTourOut(
+            order=[ids[i] for i in tour.order],
+            travel_s=round(tour.travel_s, 4),
+            dwell_s=dwell_s,
+            cycle_time_s=round(dwell_s * len(views) + tour.travel_s, 4),
+            legs_s=np.round(tour.legs_s, 4).tolist(),
+            home=None if home is None else self._to_deg(home).tolist(),
+            solver=tour.solver,
+            path_step_deg=step,
+            path_violations=bad,
+        )
+
+
+def _hash(text: str) -> str:
+    """SHA-256 hex of a text."""
+    import hashlib
+
+    return hashlib.sha256(text.encode()).hexdigest()

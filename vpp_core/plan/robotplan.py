@@ -89,7 +89,9 @@ class RobotGate:
     def _compute(self, camera_to_part: np.ndarray) -> list[Found]:
         """Reach of poses not solved yet: the arm's IK and collisions, or the turntable."""
         if self.robot is not None:
-            r = reachability(self.robot, self.scene, self.part_to_cell @ camera_to_part)
+            r = reachability(
+                self.robot, self.scene, self.part_to_cell @ camera_to_part, self.checker
+            )
             return [
                 (int(r.reason[i]), r.joints[i], float(r.roll_deg[i])) for i in range(len(r.reason))
             ]
@@ -123,7 +125,7 @@ class RobotGate:
         if self.robot is not None and self.robot.spec.roll_free_deg:
             spec = self.robot.spec.model_copy(update={"roll_free_deg": 0.0})
             exact = RobotGate(spec, None, self.part_to_cell, self.scene)
-            exact._checker = self._checker
+            exact._checker = self.checker
             found = exact.solve(views.camera_to_world())
             self.found.update(exact.found)
             self.dropped.update(exact.dropped)

@@ -95,11 +95,14 @@ def flange_targets(robot: Robot, camera_to_cell: np.ndarray, roll: float) -> np.
     )
 
 
-def reachability(robot: Robot, scene: Scene, camera_to_cell: np.ndarray) -> Reach:
-    """Reachability of (N, 4, 4) camera-to-cell poses (mm) for `robot` in `scene`."""
+def reachability(
+    robot: Robot, scene: Scene, camera_to_cell: np.ndarray, checker: Checker | None = None
+) -> Reach:
+    """Reachability of (N, 4, 4) camera-to-cell poses (mm) for `robot` in `scene` (`checker`:
+    a Checker of this robot and scene to reuse; its BVHs are built once)."""
     camera_to_cell = np.asarray(camera_to_cell, dtype=np.float64).reshape(-1, 4, 4)
     n_pose = len(camera_to_cell)
-    solver = _Solver(robot, Checker(robot, scene))
+    solver = _Solver(robot, checker or Checker(robot, scene))
     reason = np.full(n_pose, REASONS.index("no_ik"), dtype=np.int8)
     joints = np.full((n_pose, robot.n), np.nan)
     roll_used = np.full(n_pose, np.nan)

@@ -301,3 +301,25 @@ def test_plan_gate_rolls_reports_joints_and_a_joint_space_tour() -> None:
     assert tour.cycle_time_s == pytest.approx(0.5 * len(idx) + sum(legs), abs=1e-3)
     with pytest.raises(ViewpointError, match="viewpoint 0 .*collision|viewpoint 0 .*no_ik"):
         gate.check_explicit(views)
+
+
+def test_viewer_arm_frames_are_the_links_forward_kinematics() -> None:
+    from vpp_core.report.armscene import arm_arrays
+
+    part_to_cell = np.asarray(rigid(Rotation.from_euler("z", 20, degrees=True), [300.0, 20, 10]))
+    q_deg = np.array([[10.0, -80, 70, -60, -90, 15], [0, -90, 90, -90, -90, 0]])
+    spec = RobotSpec(name="ur5", base_to_cell=BASE, camera_box_mm=[50, 50, 50])
+    a = arm_arrays(spec, part_to_cell, q_deg)
+    text, _, _ = arm_urdf("ur5")
+    links = load_robot(spec).chain.links
+    assert a["arm_frames"].shape == (2, len(links), 4, 4)
+    assert a["arm_link"].max() == len(links) - 1 and len(a["arm_link"]) == len(a["arm_vertices"])
+    assert a["arm_faces"].max() < len(a["arm_vertices"])
+    for k in range(2):
+        for i, name in enumerate(links):
+            want = (
+                np.linalg.inv(part_to_cell)
+                @ np.asarray(BASE)
+                @ urdf_fk(text, name, np.radians(q_deg[k]))
+            )
+            assert np.abs(a["arm_frames"][k, i] - want).max() < 1e-2  # float32, mm

@@ -112,6 +112,7 @@ async function load(plan) {
   Object.assign(state, { plan, doc, scene, shown: plan });
   Object.assign(view, { problems: $('problems').checked, states: a.state }); // painted once, next
   view.setPlan(colours, doc.viewpoints, doc.sensor, a.view_offsets, a.view_faces);
+  view.setArm(a);
   if (first) view.fit(false);
   $('summary').classList.remove('pending');
   summary(doc);

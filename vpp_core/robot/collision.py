@@ -77,6 +77,7 @@ class Shape:
     origin: np.ndarray
     points: np.ndarray
     radius: float = 0.0
+    faces: np.ndarray | None = None  # a mesh's triangles (for drawing)
 
 
 def _shape(g: Geometry) -> Shape:
@@ -85,7 +86,7 @@ def _shape(g: Geometry) -> Shape:
 
     if g.kind == "mesh":
         v, f = _mesh_file(g.path, g.scale)
-        return Shape(_bvh(v, f), g.origin, v)
+        return Shape(_bvh(v, f), g.origin, v, faces=f)
     if g.kind == "box":
         corners = np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1])).reshape(3, -1).T
         return Shape(fcl.Box(*g.size), g.origin, corners * np.asarray(g.size) / 2)

@@ -23,6 +23,8 @@ from vpp_core.robot.urdf import Chain
 Row4 = Annotated[list[float], Field(min_length=4, max_length=4)]
 Matrix4 = Annotated[list[Row4], Field(min_length=4, max_length=4)]
 IDENTITY: list[list[float]] = np.eye(4).tolist()
+MAX_JOINTS = 12
+"""Moving joints a robot may have between its root and its flange."""
 
 
 def check_rigid(m: list[list[float]]) -> list[list[float]]:
@@ -185,6 +187,10 @@ def load_robot(spec: RobotSpec) -> Robot:
     else:
         assert spec.urdf is not None
         chain = parse_chain(spec.urdf, spec.tip_link or _leaf(spec.urdf), None)
+    if chain.n > MAX_JOINTS:
+        raise RobotError(
+            f"the chain to {chain.links[-1]!r} has {chain.n} moving joints (at most {MAX_JOINTS})"
+        )
     unit = np.where(chain.prismatic, 1.0, np.pi / 180)
     lower, upper, speed = chain.lower.copy(), chain.upper.copy(), chain.speed.copy()
     if spec.joint_limits is not None:

@@ -323,3 +323,22 @@ def test_viewer_arm_frames_are_the_links_forward_kinematics() -> None:
                 @ urdf_fk(text, name, np.radians(q_deg[k]))
             )
             assert np.abs(a["arm_frames"][k, i] - want).max() < 1e-2  # float32, mm
+
+
+def test_plan_gate_turntable_views_carry_their_table_angle() -> None:
+    from vpp_core.plan.robotplan import RobotGate
+
+    cam = np.eye(4)
+    cam[:3, :3] = np.column_stack([[0, 1, 0], [0, 0, -1], [-1, 0, 0]])  # looks along -x
+    cam[:3, 3] = [400, 0, 100]
+    table = TurntableSpec(camera_to_cell=cam.tolist(), angle_step_deg=90, speed_deg_s=45)
+    gate = RobotGate(None, table, np.eye(4), Scene())
+    views = gate.table_views()
+    assert len(views) == 4
+    joints = gate.joints_deg(views)
+    assert np.allclose(np.sort(np.mod(joints[:, 0], 360)), [0, 90, 180, 270], atol=1e-6)
+    out = gate.report(list(range(4)), views, dwell_s=1.0)
+    assert out.kind == "turntable" and out.dropped == {"no_ik": 0, "joint_limit": 0, "collision": 0}
+    # the open tour visits the quarter turns in order: 3 moves of 90 deg at 45 deg/s
+    assert out.tour is not None and out.tour.travel_s == pytest.approx(6.0)
+    assert out.tour.cycle_time_s == pytest.approx(10.0)

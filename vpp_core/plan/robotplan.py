@@ -25,7 +25,7 @@ from vpp_core.robot.collision import Checker, Scene
 from vpp_core.robot.jointtour import joint_tour, path_violations
 from vpp_core.robot.model import Robot, RobotSpec, TurntableSpec, load_robot
 from vpp_core.robot.reach import REASONS, reachability
-from vpp_core.robot.turntable import turntable_solve
+from vpp_core.robot.turntable import turntable_solve, turntable_views
 
 Found = tuple[int, np.ndarray | None, float]
 """(reason index, joint vector in rad/mm or None, roll deg) of one pose."""
@@ -100,6 +100,16 @@ class RobotGate:
         # the fixed camera turns by the roll itself: the pose is met exactly, nothing to roll
         joints = np.column_stack([np.radians(t.angle_deg), t.offset_mm, np.radians(t.roll_deg)])
         return [(int(t.reason[i]), joints[i], 0.0) for i in range(len(t.reason))]
+
+    def table_views(self) -> Viewpoints:
+        """The turntable's candidates: every (table angle, station) of its grid, as the camera
+        pose each is in the part frame (their joints known)."""
+        assert self.table is not None
+        grid = turntable_views(self.table, self.part_to_cell)
+        m = grid.camera_to_part
+        views = make_viewpoints(m[:, :3, 3], m[:, :3, 2], -m[:, :3, 1])
+        self.solve(views.camera_to_world())  # the solver recovers each (angle, station)
+        return views
 
     def allowed(self, positions: np.ndarray, gazes: np.ndarray) -> np.ndarray:
         """(k,) bool: the carrier reaches a camera at each position looking along each gaze

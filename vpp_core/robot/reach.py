@@ -135,8 +135,12 @@ class _Solver:
         per roll, or one when the roll is the last joint's turn)."""
         saw = {"joint_limit": False, "collision": False}
         n = self.robot.n
+        floor = self.checker.scene.floor_z
         for k, target in enumerate(targets):
             if np.linalg.norm(target[:3, 3] - self.shoulder) > self.reach:
+                continue
+            if floor is not None and (self.robot.base_to_cell @ target)[2, 3] < floor:
+                saw["collision"] = True  # the flange itself below the floor
                 continue
             for q in self._solutions(target):
                 if sign and self.checker.colliding(q[None], range(n))[0]:

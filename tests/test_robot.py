@@ -5,6 +5,7 @@ joint limits, turntable angles and joint-space travel times."""
 from __future__ import annotations
 
 import xml.etree.ElementTree as ET
+from collections import Counter
 
 import numpy as np
 import pytest
@@ -279,7 +280,7 @@ def test_plan_gate_rolls_reports_joints_and_a_joint_space_tour() -> None:
     cams = poses_around(np.zeros(3), 8, seed=4)  # part frame: around the part's origin
     cams[0, :3, 3] = [0.0, 0.0, -300.0]  # under the floor once placed (cell z = -250)
     views = make_viewpoints(cams[:, :3, 3], cams[:, :3, 2], -cams[:, :3, 1])
-    kept, idx = gate.filter(views)
+    kept, idx, dropped = gate.filter(views)
     assert 0 not in idx and len(idx) >= 4
     turned = np.degrees(np.arccos(np.clip((kept.ups * views.ups[idx]).sum(axis=1), -1, 1)))
     assert (turned > 1).sum() >= 2  # rolled views carry their new up
@@ -289,8 +290,9 @@ def test_plan_gate_rolls_reports_joints_and_a_joint_space_tour() -> None:
         got = urdf_fk(text, tip, np.radians(joints[k]))
         want = part_to_cell @ kept.camera_to_world()[k]
         assert np.abs(got - want).max() < 1e-3  # the traced (rolled) pose is the arm's
-    out = gate.report([int(i) for i in idx], kept, dwell_s=0.5)
-    assert out.dropped["collision"] + out.dropped["no_ik"] >= 1 and out.checked == 8
+    assert sum(dropped.values()) == 8 - len(idx) and dropped["collision"] >= 1  # the one below
+    out = gate.report([int(i) for i in idx], kept, 0.5, len(views), dropped)
+    assert out.dropped == {r: dropped[r] for r in ("no_ik", "joint_limit", "collision")}
     tour = out.tour
     assert tour is not None and sorted(tour.order) == sorted(int(i) for i in idx)
     speed = np.degrees(gate.speeds())
@@ -337,7 +339,7 @@ def test_plan_gate_turntable_views_carry_their_table_angle() -> None:
     assert len(views) == 4
     joints = gate.joints_deg(views)
     assert np.allclose(np.sort(np.mod(joints[:, 0], 360)), [0, 90, 180, 270], atol=1e-6)
-    out = gate.report(list(range(4)), views, dwell_s=1.0)
+    out = gate.report(list(range(4)), views, 1.0, 4, Counter())
     assert out.kind == "turntable" and out.dropped == {"no_ik": 0, "joint_limit": 0, "collision": 0}
     # the open tour visits the quarter turns in order: 3 moves of 90 deg at 45 deg/s
     assert out.tour is not None and out.tour.travel_s == pytest.approx(6.0)

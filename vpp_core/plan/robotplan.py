@@ -1,13 +1,12 @@
 """The robot (or turntable) of a setup in a plan: which camera poses it can take, the joint
 values of the chosen views, and the visiting order in joint space (issue 36, docs/robot.md).
 
-A `RobotGate` is made once per plan from the robot spec, the part in the cell and the
-collision scene. Every source of candidates asks it before tracing: the generator and its
-retries (`allowed`, a predicate on positions and gazes), the generated pool and the adaptive
-rounds (`filter`: unreachable poses dropped, reachable ones turned to the roll the arm takes),
-explicit viewpoints (`check_explicit`: a ViewpointError naming the viewpoint and the reason).
-Results are kept per pose, so a pose is solved once per plan; `annotate` writes the joint
-values of the selected views, what was dropped and why, and the joint-space tour.
+A `RobotGate` is made from the robot spec, the part in the cell and the collision scene.
+Every source of candidates asks it before tracing: the generated pool and the adaptive rounds
+(`filter`: unreachable poses dropped, with counts by reason; reachable ones turned to the
+roll the arm takes), explicit viewpoints (`check_explicit`: a ViewpointError naming the
+viewpoint and the reason). Results are kept per pose, so a pose is solved once per gate;
+`report` gives the joint-space tour of the selected views and what was dropped and why.
 """
 
 from __future__ import annotations
@@ -60,9 +59,7 @@ class RobotGate:
         self.robot: Robot | None = load_robot(robot) if robot is not None else None
         self._checker: Checker | None = None
         self.found: dict[bytes, Found] = {}
-        self.dropped: Counter[str] = Counter()
         self.seconds = 0.0
-        self.checked = 0
 
     @property
     def checker(self) -> Checker:
@@ -78,11 +75,8 @@ class RobotGate:
         todo = [i for i, k in enumerate(keys) if k not in self.found]
         if todo:
             start = time.perf_counter()
-            self.checked += len(todo)
             for i, found in zip(todo, self._compute(camera_to_part[todo]), strict=True):
                 self.found[keys[i]] = found
-                if found[0]:
-                    self.dropped[REASONS[found[0]]] += 1
             self.seconds += time.perf_counter() - start
         return [self.found[k] for k in keys]
 
@@ -111,23 +105,17 @@ class RobotGate:
         self.solve(views.camera_to_world())  # the solver recovers each (angle, station)
         return views
 
-    def allowed(self, positions: np.ndarray, gazes: np.ndarray) -> np.ndarray:
-        """(k,) bool: the carrier reaches a camera at each position looking along each gaze
-        (part frame, default up, any roll it may take)."""
-        if not len(positions):
-            return np.zeros(0, dtype=bool)
-        views = make_viewpoints(positions, gazes)
-        return np.array([f[0] == 0 for f in self.solve(views.camera_to_world())])
-
-    def filter(self, views: Viewpoints) -> tuple[Viewpoints, np.ndarray]:
-        """(the reachable views turned to their rolls, their indices into `views`)."""
+    def filter(self, views: Viewpoints) -> tuple[Viewpoints, np.ndarray, Counter[str]]:
+        """(the reachable views turned to their rolls, their indices into `views`, how many
+        were dropped for each reason)."""
         found = self.solve(views.camera_to_world())
+        dropped = Counter(REASONS[f[0]] for f in found if f[0])
         keep = np.array([f[0] == 0 for f in found], dtype=bool)
         idx = np.flatnonzero(keep)
         out = rolled(views.take(idx), np.array([found[i][2] for i in idx]))
         for i, m in zip(idx, out.camera_to_world(), strict=True):
             self.found[pose_key(m)] = (0, found[i][1], 0.0)
-        return out, idx
+        return out, idx, dropped
 
     def check_explicit(self, views: Viewpoints) -> None:
         """ViewpointError naming the first explicit viewpoint the carrier cannot take as given
@@ -138,8 +126,6 @@ class RobotGate:
             exact._checker = self.checker
             found = exact.solve(views.camera_to_world())
             self.found.update(exact.found)
-            self.dropped.update(exact.dropped)
-            self.checked += exact.checked
         else:
             found = self.solve(views.camera_to_world())
         for i, f in enumerate(found):
@@ -196,9 +182,11 @@ class RobotGate:
             self.robot.chain.prismatic, self.spec.home_deg, np.radians(self.spec.home_deg)
         )
 
-    def report(self, ids: list[int], views: Viewpoints, dwell_s: float) -> RobotOut:
-        """The document's `robot`: drops, key, and the joint-space tour of `views` (the
-        selected ones, candidate `ids`)."""
+    def report(
+        self, ids: list[int], views: Viewpoints, dwell_s: float, checked: int, dropped: Counter[str]
+    ) -> RobotOut:
+        """The document's `robot`: the poses checked and dropped (by reason), the content key,
+        and the joint-space tour of `views` (the selected ones, candidate `ids`)."""
         names, units = self.describe()
         tour = self._tour(ids, views, dwell_s) if len(views) else None
         key = self.spec.key() if self.spec is not None else self.table.model_dump_json()  # type: ignore[union-attr]
@@ -207,8 +195,8 @@ class RobotGate:
             name=self.name(),
             joints=names,
             units=units,
-            checked=self.checked,
-            dropped={r: int(self.dropped[r]) for r in REASONS[1:]},
+            checked=checked,
+            dropped={r: int(dropped[r]) for r in REASONS[1:]},
             key=_hash(key + self.scene.key()),
             seconds=round(self.seconds, 3),
             tour=tour,

@@ -58,6 +58,7 @@ class RobotGate:
         self.scene = scene
         self.robot: Robot | None = load_robot(robot) if robot is not None else None
         self._checker: Checker | None = None
+        self._exact: RobotGate | None = None
         self.found: dict[bytes, Found] = {}
         self.seconds = 0.0
 
@@ -120,15 +121,7 @@ class RobotGate:
     def check_explicit(self, views: Viewpoints) -> None:
         """ViewpointError naming the first explicit viewpoint the carrier cannot take as given
         (an arm's roll freedom is not used: an explicit pose is not turned) and why."""
-        if self.robot is not None and self.robot.spec.roll_free_deg:
-            spec = self.robot.spec.model_copy(update={"roll_free_deg": 0.0})
-            exact = RobotGate(spec, None, self.part_to_cell, self.scene)
-            exact._checker = self.checker
-            found = exact.solve(views.camera_to_world())
-            self.found.update(exact.found)
-        else:
-            found = self.solve(views.camera_to_world())
-        for i, f in enumerate(found):
+        for i, f in enumerate(self.solve_exact(views.camera_to_world())):
             if f[0]:
                 why = REASONS[f[0]]
                 raise ViewpointError(
@@ -142,9 +135,26 @@ class RobotGate:
             return "turntable"
         return self.spec.name or "urdf"
 
+    def solve_exact(self, camera_to_part: np.ndarray) -> list[Found]:
+        """Reach of poses as given: an arm's answers that turned the camera are solved again
+        without roll freedom (a pose the gate passed is in the cache with roll 0)."""
+        found = self.solve(camera_to_part)
+        redo = [i for i, f in enumerate(found) if self.robot is not None and (f[0] or f[2])]
+        if redo and self.robot is not None and self.robot.spec.roll_free_deg:
+            spec = self.robot.spec.model_copy(update={"roll_free_deg": 0.0})
+            if self._exact is None:
+                self._exact = RobotGate(spec, None, self.part_to_cell, self.scene)
+                self._exact._checker = self.checker
+            for i, f in zip(redo, self._exact.solve(camera_to_part[redo]), strict=True):
+                found[i] = f
+                if not f[0]:
+                    self.found[pose_key(camera_to_part[i])] = f
+        return [(f[0] or (REASONS.index("joint_limit") if f[2] else 0), f[1], f[2]) for f in found]
+
     def joints_deg(self, views: Viewpoints) -> np.ndarray:
-        """(K, n) joint values (deg, mm) of views the gate passed (NaN where unknown)."""
-        found = self.solve(views.camera_to_world())
+        """(K, n) joint values (deg, mm) that put the camera at each view exactly (NaN where
+        the carrier cannot)."""
+        found = self.solve_exact(views.camera_to_world())
         n = self.robot.n if self.robot is not None else 3
         out = np.full((len(views), n), np.nan)
         for i, f in enumerate(found):

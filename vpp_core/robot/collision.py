@@ -187,15 +187,16 @@ class Checker:
         return pairs
 
     def self_hits(self, frames: np.ndarray, links: range | None = None) -> np.ndarray:
-        """(N,) whether two links (one of them in `links`; default all) touch each other, at
-        link frames (N, n + 1, 4, 4)."""
+        """(N,) whether two links touch each other, at link frames (N, n + 1, 4, 4): the pairs
+        whose later link is in `links` (default all), so that links before the last and the
+        last one (which a roll turns) can be checked apart."""
         import fcl
 
         out = np.zeros(len(frames), dtype=bool)
         pairs = [
             (a, b)
             for a, b in self.pairs
-            if links is None or self.parts[a][0] in links or self.parts[b][0] in links
+            if links is None or max(self.parts[a][0], self.parts[b][0]) in links
         ]
         if not pairs:
             return out

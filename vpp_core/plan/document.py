@@ -13,7 +13,7 @@ from vpp_core.plan.cycle import Objective, TourOut
 from vpp_core.plan.diagnostics import Diagnostics
 from vpp_core.plan.metrics import Metrics
 from vpp_core.plan.regions import Region, check_regions, finest
-from vpp_core.plan.robotdoc import RobotOut
+from vpp_core.plan.robotdoc import RobotCounts, RobotOut
 from vpp_core.trace.rays import DEFAULT_BACKEND, BackendName
 
 Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
@@ -271,6 +271,9 @@ class CandidateInfo(BaseModel):
     standoff_mm: float | None = None
     added: int = 0
     """Candidates added by the adaptive rounds (their ids follow the generated ones)."""
+    robot: RobotCounts | None = None
+    """With a robot or turntable: the poses its reach was computed for (generator and
+    adaptive rounds) and those dropped by reason (no_ik, joint_limit, collision)."""
 
 
 class AdaptiveRound(BaseModel):
@@ -386,6 +389,7 @@ class Timings(BaseModel):
     metrics: float = 0.0
     diagnostics: float = 0.0
     setup: float = 0.0  # what the setup hides (setup_occluded), with a setup only
+    robot: float = 0.0  # joints of the views and the joint-space tour, with a robot only
 
 
 class RaysInfo(BaseModel):

@@ -42,6 +42,13 @@ class RobotTourOut(BaseModel):
     path_violations: list[PathViolation] = []
 
 
+class RobotCounts(BaseModel):
+    """Candidate poses whose reach was computed, and those dropped by reason."""
+
+    checked: int
+    dropped: dict[str, int]
+
+
 class RobotOut(BaseModel):
     """The carrier of the camera and what its reach did to the candidates."""
 

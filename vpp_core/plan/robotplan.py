@@ -12,13 +12,17 @@ viewpoint and the reason). Results are kept per pose, so a pose is solved once p
 from __future__ import annotations
 
 import time
-from collections import Counter
+from collections import Counter, OrderedDict
+from collections.abc import Callable
 
 import numpy as np
 
 from vpp_core.camera.pose import Viewpoints, make_viewpoints
+from vpp_core.cell.geometry import Cell
 from vpp_core.errors import ViewpointError
-from vpp_core.plan.robotdoc import PathViolation, RobotOut, RobotTourOut
+from vpp_core.mesh.part import Part
+from vpp_core.plan.document import CandidateGenerator, CandidateInfo, PlanDocument, PlanRequest
+from vpp_core.plan.robotdoc import PathViolation, RobotCounts, RobotOut, RobotTourOut
 from vpp_core.plan.route import solve_route
 from vpp_core.robot.collision import Checker, Scene
 from vpp_core.robot.jointtour import joint_tour, path_violations
@@ -26,6 +30,8 @@ from vpp_core.robot.model import Robot, RobotSpec, TurntableSpec, load_robot
 from vpp_core.robot.reach import REASONS, reachability
 from vpp_core.robot.turntable import turntable_solve, turntable_views
 
+Keep = Callable[[Viewpoints], Viewpoints]
+"""keep(views) -> the views a carrier can take (turned to its roll)."""
 Found = tuple[int, np.ndarray | None, float]
 """(reason index, joint vector in rad/mm or None, roll deg) of one pose."""
 
@@ -246,3 +252,145 @@ def _hash(text: str) -> str:
     import hashlib
 
     return hashlib.sha256(text.encode()).hexdigest()
+
+
+# --- the setup's carrier in the pipeline (pipeline.py and adaptive.py call these) ----------
+
+GATES: OrderedDict[tuple[str, str], RobotGate] = OrderedDict()
+KEEP_GATES = 2
+"""Gates kept per process (a worker's next plan of the same part and setup reuses one)."""
+
+
+def robot_scene(part: Part, cell: Cell) -> Scene:
+    """The arm's collision scene in the cell frame (mm): the part placed, the fixtures, the
+    keep-out meshes and boxes (nothing of the arm enters them either), the floor."""
+    import trimesh
+
+    meshes = [(cell.to_cell(part.vertices), np.asarray(part.faces))]
+    names = ["part"]
+    for solid in (*cell.fixtures, *cell.keep_out_meshes):
+        meshes.append((solid.vertices, solid.faces))
+        names.append(solid.name)
+    for name, box in cell.keep_out_boxes:
+        b = trimesh.creation.box(bounds=box)
+        meshes.append((np.asarray(b.vertices), np.asarray(b.faces)))
+        names.append(name)
+    floor = cell.setup.floor
+    return Scene(meshes, None if floor is None else floor.z_mm, names)
+
+
+def gate_of(part: Part, cell: Cell | None) -> RobotGate | None:
+    """The gate of the setup's robot or turntable (None: neither), cached per part and setup."""
+    setup = None if cell is None else cell.setup
+    if cell is None or setup is None or (setup.robot is None and setup.turntable is None):
+        return None
+    key = (part.id, setup.model_dump_json())
+    gate = GATES.pop(key, None)
+    if gate is None:
+        scene = robot_scene(part, cell) if setup.robot is not None else Scene()
+        gate = RobotGate(setup.robot, setup.turntable, cell.part_to_cell, scene)
+    GATES[key] = gate
+    while len(GATES) > KEEP_GATES:
+        GATES.popitem(last=False)
+    return gate
+
+
+def table_candidates(
+    part: Part, cell: Cell | None, info: CandidateInfo
+) -> tuple[Viewpoints, CandidateInfo] | None:
+    """A turntable's candidates instead of the generator's (None: no turntable)."""
+    gate = gate_of(part, cell)
+    if gate is None or gate.table is None:
+        return None
+    views = gate.table_views()
+    counts = RobotCounts(checked=len(views), dropped={r: 0 for r in REASONS[1:]})
+    return views, info.model_copy(update={"generated": len(views), "robot": counts})
+
+
+def reachable_candidates(
+    part: Part, cell: Cell | None, views: Viewpoints, info: CandidateInfo
+) -> tuple[Viewpoints, CandidateInfo]:
+    """The generated candidates the arm can take, turned to its roll; the others dropped
+    and counted in info.robot (unchanged without a robot)."""
+    gate = gate_of(part, cell)
+    if gate is None or gate.robot is None:
+        return views, info
+    kept, _, dropped = gate.filter(views)
+    counts = RobotCounts(checked=len(views), dropped={r: dropped[r] for r in REASONS[1:]})
+    update = {
+        "generated": len(kept),
+        "dropped": info.dropped + len(views) - len(kept),
+        "robot": counts,
+    }
+    return kept, info.model_copy(update=update)
+
+
+def reachable_filter(part: Part, cell: Cell | None, tally: Counter[str]) -> Keep | None:
+    """The adaptive rounds' filter: new views the carrier can take (turned to its roll),
+    with the drops added to `tally` (None without a robot or turntable)."""
+    gate = gate_of(part, cell)
+    if gate is None:
+        return None
+
+    def keep(views: Viewpoints) -> Viewpoints:
+        kept, _, dropped = gate.filter(views)
+        tally.update(dropped)
+        tally["checked"] += len(views)
+        return kept
+
+    return keep
+
+
+def counted(info: CandidateInfo, tally: Counter[str]) -> CandidateInfo:
+    """info with the adaptive rounds' robot drops added."""
+    if info.robot is None or not tally:
+        return info
+    dropped = {r: info.robot.dropped.get(r, 0) + tally[r] for r in REASONS[1:]}
+    counts = RobotCounts(checked=info.robot.checked + tally["checked"], dropped=dropped)
+    return info.model_copy(update={"robot": counts})
+
+
+def check_reachable(part: Part, cell: Cell | None, views: Viewpoints) -> None:
+    """ViewpointError naming the first explicit viewpoint the carrier cannot take, and why."""
+    gate = gate_of(part, cell)
+    if gate is not None:
+        gate.check_explicit(views)
+
+
+def annotate_robot(doc: PlanDocument, part: Part, request: PlanRequest, cell: Cell | None) -> None:
+    """Each selected viewpoint's joints and doc.robot (drops, joint-space tour; nothing
+    without a robot or turntable)."""
+    gate = gate_of(part, cell)
+    if gate is None:
+        return
+    vps = doc.viewpoints
+    views = make_viewpoints(
+        np.array([v.position for v in vps]).reshape(-1, 3),
+        np.array([v.gaze for v in vps]).reshape(-1, 3),
+        np.array([v.up for v in vps]).reshape(-1, 3),
+    )
+    joints = gate.joints_deg(views)
+    for v, q in zip(vps, joints, strict=True):
+        v.joints = None if np.isnan(q).any() else np.round(q, 6).tolist()
+    counts = doc.candidate_info.robot or RobotCounts(checked=len(doc.candidates), dropped={})
+    ok = ~np.isnan(joints).any(axis=1)
+    ids = [v.id for v, good in zip(vps, ok, strict=True) if good]
+    doc.robot = gate.report(
+        ids, views.take(np.flatnonzero(ok)), request.objective.dwell_s,
+        counts.checked, Counter(counts.dropped),
+    )  # fmt: skip
+
+
+def check_request_reach(part: Part, request: PlanRequest, cell: Cell | None) -> None:
+    """Before any work: ViewpointError naming the first explicit viewpoint of `request` the
+    setup's robot or turntable cannot take, and why (nothing to check otherwise)."""
+    spec = request.candidates
+    if isinstance(spec, CandidateGenerator) or gate_of(part, cell) is None:
+        return
+    nan = [np.nan] * 3
+    views = make_viewpoints(
+        np.array([v.position for v in spec.viewpoints]).reshape(-1, 3),
+        np.array([v.gaze for v in spec.viewpoints]).reshape(-1, 3),
+        np.array([v.up if v.up is not None else nan for v in spec.viewpoints]).reshape(-1, 3),
+    )
+    check_reachable(part, cell, views)

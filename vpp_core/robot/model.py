@@ -44,7 +44,7 @@ def check_rigid(m: list[list[float]]) -> list[list[float]]:
 class RobotSpec(BaseModel):
     """A six- (or seven-) axis arm carrying the camera: a bundled arm or a URDF."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     name: Literal["ur3", "ur5", "ur10", "panda"] | None = Field(
         None, description="bundled arm (example-robot-data's URDFs)"
@@ -111,7 +111,7 @@ class RobotSpec(BaseModel):
 class LinearAxis(BaseModel):
     """The camera's linear axis: it moves along `direction` (cell frame) by min..max mm."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     direction: Annotated[list[float], Field(min_length=3, max_length=3)] = [0.0, 0.0, 1.0]
     min_mm: float = Field(0.0, ge=-1e5, le=1e5)
@@ -130,7 +130,7 @@ class TurntableSpec(BaseModel):
     """The part on a rotary table (axis through `axis_point` along `axis`, cell frame) in
     front of a fixed camera (`camera_to_cell`), optionally on a linear axis."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     axis_point: Annotated[list[float], Field(min_length=3, max_length=3)] = [0.0, 0.0, 0.0]
     axis: Annotated[list[float], Field(min_length=3, max_length=3)] = [0.0, 0.0, 1.0]

@@ -291,6 +291,12 @@ def test_plan_gate_rolls_reports_joints_and_a_joint_space_tour() -> None:
         want = part_to_cell @ kept.camera_to_world()[k]
         assert np.abs(got - want).max() < 1e-3  # the traced (rolled) pose is the arm's
     assert sum(dropped.values()) == 8 - len(idx) and dropped["collision"] >= 1  # the one below
+    fresh = RobotGate(spec, None, part_to_cell, Scene(floor_z=0.0))  # another process's gate
+    again = fresh.joints_deg(kept)
+    assert not np.isnan(again).any()
+    for k in range(len(kept)):
+        got = urdf_fk(text, tip, np.radians(again[k]))
+        assert np.abs(got - part_to_cell @ kept.camera_to_world()[k]).max() < 1e-3
     out = gate.report([int(i) for i in idx], kept, 0.5, len(views), dropped)
     assert out.dropped == {r: dropped[r] for r in ("no_ik", "joint_limit", "collision")}
     tour = out.tour

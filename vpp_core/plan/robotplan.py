@@ -30,6 +30,9 @@ from vpp_core.robot.model import Robot, RobotSpec, TurntableSpec, load_robot
 from vpp_core.robot.reach import REASONS, reachability
 from vpp_core.robot.turntable import turntable_solve, turntable_views
 
+EXACT_SEEDS = 16
+"""IK starts per pose when a pose is solved again exactly (explicit viewpoints, the joints of
+the chosen views in a process that did not filter them)."""
 Keep = Callable[[Viewpoints], Viewpoints]
 """keep(views) -> the views a carrier can take (turned to its roll)."""
 Found = tuple[int, np.ndarray | None, float]
@@ -142,12 +145,14 @@ class RobotGate:
         return self.spec.name or "urdf"
 
     def solve_exact(self, camera_to_part: np.ndarray) -> list[Found]:
-        """Reach of poses as given: an arm's answers that turned the camera are solved again
-        without roll freedom (a pose the gate passed is in the cache with roll 0)."""
+        """Reach of poses as given: an arm's answers that turned the camera, or found none,
+        are solved again without roll freedom from EXACT_SEEDS starts (a pose this gate
+        passed is in its cache with roll 0; another process's gate searches wider)."""
         found = self.solve(camera_to_part)
         redo = [i for i, f in enumerate(found) if self.robot is not None and (f[0] or f[2])]
-        if redo and self.robot is not None and self.robot.spec.roll_free_deg:
-            spec = self.robot.spec.model_copy(update={"roll_free_deg": 0.0})
+        if redo and self.robot is not None:
+            seeds = max(self.robot.spec.ik_seeds, EXACT_SEEDS)  # few poses: search wider
+            spec = self.robot.spec.model_copy(update={"roll_free_deg": 0.0, "ik_seeds": seeds})
             if self._exact is None:
                 self._exact = RobotGate(spec, None, self.part_to_cell, self.scene)
                 self._exact._checker = self.checker

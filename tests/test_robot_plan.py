@@ -21,6 +21,7 @@ pytest.importorskip("fcl")
 
 from cli.main import main  # noqa: E402
 from tests.test_robot import urdf_fk  # noqa: E402
+from tests.test_viewer import browser, live  # noqa: E402, F401  (the viewer's fixtures)
 from vpp_core.camera.sensor import Sensor  # noqa: E402
 from vpp_core.errors import ViewpointError  # noqa: E402
 from vpp_core.mesh.part import Part, part_from_arrays  # noqa: E402
@@ -217,3 +218,37 @@ def test_service_robot_plan_and_an_explicit_viewpoint_it_refuses(
     served.robot.seconds = local.robot.seconds = 0.0
     same_plan(served, local)
     assert all(v.joints is not None for v in served.viewpoints)
+
+
+def test_the_viewer_draws_the_arm_at_the_selected_viewpoint(
+    live: Any,  # noqa: F811
+    browser: Any,  # noqa: F811
+) -> None:
+    from tests.test_service_jobs import wait
+    from tests.test_viewer import Page
+
+    client, url = live
+    data = trimesh.Trimesh(bushing().vertices, bushing().faces).export(file_type="stl")
+    mesh = client.post("/v1/meshes", files={"file": ("bushing.stl", data)}).json()["id"]
+    body = {"mesh_id": mesh, **request(ur5_setup()).model_dump(mode="json")}
+    job = client.post("/v1/plans", json=body).json()["id"]
+    assert wait(client, job)["status"] == "succeeded"
+    doc = client.get(f"/v1/plans/{job}").json()
+    page = Page(browser, f"{url}/v1/plans/{job}/view")
+    assert page.js("window.vppViewer.arm()")["visible"] is False  # nothing selected
+    k = len(doc["viewpoints"]) // 2
+    page.js("k => window.vppViewer.select(k)", k)
+    page.drawn()
+    arm = page.js("window.vppViewer.arm()")
+    assert arm["visible"] is True
+    # part frame: the arm reaches from its base (cell origin = part frame (-400, 0, 0)) to the
+    # camera it carries, 60 mm in front of the flange
+    base = np.linalg.inv(np.asarray(PLACE))[:3, 3]
+    camera = np.asarray(doc["viewpoints"][k]["position"])
+    lo, hi = np.asarray(arm["min"]), np.asarray(arm["max"])
+    assert (lo <= base + 1).all() and (hi >= base - 1).all()
+    flange = camera - 60.0 * np.asarray(doc["viewpoints"][k]["gaze"])
+    assert (lo <= flange + 1).all() and (hi >= flange - 1).all()
+    page.js("window.vppViewer.select(null)")
+    assert page.js("window.vppViewer.arm()")["visible"] is False
+    assert page.errors == []

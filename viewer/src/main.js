@@ -357,6 +357,8 @@ const api = {
   labelBoxes: () => view.labelBoxes(),
   drawnCameras: () => ({ frusta: view.frusta.visible, tour: view.tour.visible }),
   partBox: () => view.partBox(),
+  /** The arm drawn at the selected viewpoint: {visible, min, max} of its vertices (null: no arm). */
+  arm: () => view.armState(),
   problemsOnly: (on) => { $('problems').checked = on; $('problems').onchange({ target: $('problems') }); },
   setShading: (on) => { $('shading').checked = on; view.setShading(on); },
   show: (what, on) => view.show(what, on),

@@ -345,6 +345,13 @@ export class PlanScene {
     this.armMesh.geometry.computeBoundingSphere();
   }
 
+  /** Whether the arm is drawn and the box of its posed vertices (null without an arm). */
+  armState() {
+    if (!this.armMesh) return null;
+    const box = new THREE.Box3().setFromBufferAttribute(this.armMesh.geometry.getAttribute('position'));
+    return { visible: this.armMesh.visible, min: box.min.toArray(), max: box.max.toArray() };
+  }
+
   select(k) {
     this.selected = k;
     this.poseArm(k);

@@ -252,3 +252,26 @@ def test_the_viewer_draws_the_arm_at_the_selected_viewpoint(
     page.js("window.vppViewer.select(null)")
     assert page.js("window.vppViewer.arm()")["visible"] is False
     assert page.errors == []
+
+
+def test_the_arms_scene_is_the_part_in_the_cell_its_fixtures_keep_outs_and_floor() -> None:
+    from vpp_core.cell.geometry import resolve
+    from vpp_core.cell.setup import Setup
+    from vpp_core.plan.robotplan import gate_of, robot_scene
+
+    block = trimesh.creation.box([50, 50, 20])
+    SHIFT = [[1, 0, 0, 400], [0, 1, 0, 100], [0, 0, 1, 10], [0, 0, 0, 1]]  # noqa: N806
+    setup = Setup.model_validate({
+        **ur5_setup(),
+        "fixtures": [{"mesh": "block.stl", "to_cell": SHIFT}],
+        "keep_out": [{"box": {"min": [-100, 300, 0], "max": [100, 400, 500]}}],
+    })  # fmt: skip
+    cell = resolve(setup, lambda shape: (block.vertices, block.faces))
+    part = bushing()
+    scene = robot_scene(part, cell)
+    assert scene.names == ["part", "fixtures[0]", "keep_out[0]"] and scene.floor_z == 0.0
+    np.testing.assert_allclose(scene.meshes[0][0], part.vertices + [400.0, 0, 0])
+    np.testing.assert_allclose(scene.meshes[1][0].min(axis=0), [375, 75, 0])
+    np.testing.assert_allclose(scene.meshes[2][0].max(axis=0), [100, 400, 500])
+    gate = gate_of(part, cell)
+    assert gate is not None and gate.scene.key() == scene.key() and gate_of(part, cell) is gate

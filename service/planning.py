@@ -199,7 +199,10 @@ def submit_study(store: Store, queue: Queue, settings: Settings, body: StudySubm
     values = body.resolutions if body.kind == "resolution" else body.ratios
     check_study(body.kind, values, request, settings.limits())
     if request.setup is not None:  # its meshes exist; explicit viewpoints clear of fixtures
-        check_request(request, settings.limits(), art.get_cell(store, request.setup))
+        cell = art.get_cell(store, request.setup)
+        check_request(request, settings.limits(), cell)
+        if request.setup.robot is not None or request.setup.turntable is not None:
+            check_request_reach(art.get_part(store, body.mesh_id), request, cell)
     study = art.study_id(body.mesh_id, request, body.kind, values)
     if needs_job(queue.connection, store, study):
         if not store.exists(art.request_key(study)):

@@ -572,7 +572,7 @@ def _request(args: argparse.Namespace) -> PlanRequest:
                 home=args.home,
             ),
             backend=args.backend,
-            setup=_read_json(args.setup) if args.setup else None,
+            setup=_setup_json(args.setup) if args.setup else None,
             regions=_read_json(args.regions) if args.regions else [],
         )
     except ValidationError as exc:
@@ -592,6 +592,19 @@ def _read(path: Path, max_bytes: int) -> bytes:
         return path.read_bytes()
     except OSError as exc:
         raise InputError(f"{path}: {exc.strerror or exc}") from None
+
+
+def _setup_json(path: Path) -> Any:
+    """SETUP.json, a robot's `urdf` file (a path relative to it) read into its text."""
+    setup = _read_json(path)
+    robot = setup.get("robot") if isinstance(setup, dict) else None
+    urdf = robot.get("urdf") if isinstance(robot, dict) else None
+    if isinstance(robot, dict) and isinstance(urdf, str) and not urdf.lstrip().startswith("<"):
+        try:
+            robot["urdf"] = _read(path.parent / urdf, 4 * 2**20).decode()
+        except UnicodeDecodeError:
+            raise InputError(f"{path.parent / urdf}: not a URDF text file") from None
+    return setup
 
 
 def _read_json(path: Path) -> Any:
@@ -675,6 +688,7 @@ def summary(doc: PlanDocument) -> Table:
         ("median resolution", f"{_g(m.resolution.median_mm)} mm"),
         ("uncoverable faces", f"{doc.uncoverable.faces} ({doc.uncoverable.area_mm2:.4g} mm²)"),
         *_setup_rows(doc),
+        *_robot_rows(doc),
         *_tour_rows(doc),
         *_partial_rows(doc),
         *_diagnostic_rows(doc),
@@ -702,6 +716,25 @@ def _setup_rows(doc: PlanDocument) -> list[tuple[str, str]]:
             f"{o.unreachable} unreachable)",
         )
     ]
+
+
+def _robot_rows(doc: PlanDocument) -> list[tuple[str, str]]:
+    """The summary rows of a robot or turntable: what its reach dropped, its joint tour."""
+    r = doc.robot
+    if r is None:
+        return []
+    why = ", ".join(f"{n} {k}" for k, n in r.dropped.items())
+    rows = [(f"robot ({r.name})", f"{r.checked} poses checked, dropped: {why}")]
+    if r.tour is not None:
+        t = r.tour
+        rows.append(
+            (
+                "joint-space tour",
+                f"travel {t.travel_s:.3g} s, cycle {t.cycle_time_s:.3g} s ({t.solver}), "
+                f"{len(t.path_violations)} legs touching",
+            )
+        )
+    return rows
 
 
 def _tour_rows(doc: PlanDocument) -> list[tuple[str, str]]:

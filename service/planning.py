@@ -26,6 +26,7 @@ from vpp_core.mesh.part import Part
 from vpp_core.mesh.tessellate import load_part
 from vpp_core.plan.document import PlanRequest
 from vpp_core.plan.pipeline import check_request
+from vpp_core.plan.robotplan import check_request_reach
 from vpp_core.report.scene import geometry_scene, plan_scene
 from vpp_core.report.studies import check_study
 from worker import artifacts as art
@@ -161,7 +162,11 @@ def submit_plan(store: Store, queue: Queue, settings: Settings, body: PlanSubmit
     if not store.exists(art.mesh_key(body.mesh_id)):
         raise VppError(f"mesh_id {body.mesh_id}: no such mesh; upload it with POST /v1/meshes")
     if request.setup is not None:  # its meshes exist; explicit viewpoints clear of fixtures
-        check_request(request, settings.limits(), art.get_cell(store, request.setup))
+        cell = art.get_cell(store, request.setup)
+        check_request(request, settings.limits(), cell)
+        if request.setup.robot is not None or request.setup.turntable is not None:
+            part = art.get_part(store, body.mesh_id)  # explicit viewpoints the arm can take
+            check_request_reach(part, request, cell)
     check_regions(store, body.mesh_id, request)
     plan = art.plan_id(body.mesh_id, request)
     if needs_job(queue.connection, store, plan):
@@ -180,7 +185,10 @@ def submit_study(store: Store, queue: Queue, settings: Settings, body: StudySubm
     values = body.resolutions if body.kind == "resolution" else body.ratios
     check_study(body.kind, values, request, settings.limits())
     if request.setup is not None:  # its meshes exist; explicit viewpoints clear of fixtures
-        check_request(request, settings.limits(), art.get_cell(store, request.setup))
+        cell = art.get_cell(store, request.setup)
+        check_request(request, settings.limits(), cell)
+        if request.setup.robot is not None or request.setup.turntable is not None:
+            check_request_reach(art.get_part(store, body.mesh_id), request, cell)
     study = art.study_id(body.mesh_id, request, body.kind, values)
     if needs_job(queue.connection, store, study):
         if not store.exists(art.request_key(study)):

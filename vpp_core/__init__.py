@@ -4,6 +4,7 @@ The stages of a plan are its subpackages, in the order the data flows and the im
 
     mesh        bytes → Part (checked, canonical, in mm); remesh, area elements
     camera      the pinhole sensor and viewpoints (poses)
+    robot       reachability of camera poses by an arm or turntable, joint-space travel
     cell        the part in its cell: setup model, floor/fixture occluders, camera constraints
     trace       ray backends and pixel windows → R (faces × candidates ray counts); with a
                 setup, its floor and fixtures in the scene

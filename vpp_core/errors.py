@@ -7,6 +7,7 @@ VppError                 anything the caller can fix by changing the input
 │                        or stands where the setup forbids it (below the floor, ...)
 ├── SetupError           the cell setup is invalid or references a mesh that cannot be read
 ├── RegionError          a region does not fit the mesh (face id out of range, unknown label)
+├── RobotError           the robot cannot be used (bad URDF, unknown arm, no chain to the tip)
 ├── LimitError           the request exceeds a configured limit (faces, candidates, rays)
 │   └── TooLargeError    an upload exceeds the byte limit
 ├── SolverError          the set cover cannot be solved (no coverable face, infeasible model)
@@ -58,6 +59,12 @@ class RegionError(VppError):
     """A region of interest does not fit the mesh (face id out of range, unknown label)."""
 
     title = "Invalid region"
+
+
+class RobotError(VppError):
+    """The robot description (URDF, bundled name, mount, limits) cannot be used."""
+
+    title = "Invalid robot"
 
 
 class LimitError(VppError):

@@ -112,6 +112,7 @@ async function load(plan) {
   Object.assign(state, { plan, doc, scene, shown: plan });
   Object.assign(view, { problems: $('problems').checked, states: a.state }); // painted once, next
   view.setPlan(colours, doc.viewpoints, doc.sensor, a.view_offsets, a.view_faces);
+  view.setArm(a);
   if (first) view.fit(false);
   $('summary').classList.remove('pending');
   summary(doc);
@@ -356,6 +357,8 @@ const api = {
   labelBoxes: () => view.labelBoxes(),
   drawnCameras: () => ({ frusta: view.frusta.visible, tour: view.tour.visible }),
   partBox: () => view.partBox(),
+  /** The arm drawn at the selected viewpoint: {visible, min, max} of its vertices (null: no arm). */
+  arm: () => view.armState(),
   problemsOnly: (on) => { $('problems').checked = on; $('problems').onchange({ target: $('problems') }); },
   setShading: (on) => { $('shading').checked = on; view.setShading(on); },
   show: (what, on) => view.show(what, on),

@@ -10,6 +10,7 @@ const FRUSTUM = 0x1f6fb2;
 const SELECTED = 0xe8590c;
 const TOUR = 0x7048e8;
 const PENDING = 200; // the part's grey while a plan loads (no colour claims anything)
+const ARM = 0x868e96; // the robot arm posed at the selected viewpoint
 const DIM = 255; // faces the selected camera does not see fade towards white, keeping a tint
 const DIM_MIX = 0.72;
 const GLYPH = 0.25; // a camera glyph is a pyramid this many part diagonals deep (≤ near_mm)
@@ -304,8 +305,56 @@ export class PlanScene {
     this.applyVisibility();
   }
 
+  /** The arm of a robot setup from the plan scene's arrays (arm_vertices (V·3) mm in link
+   * frames, arm_faces, arm_link (V), arm_frames (K·L·16, row-major, part frame)); none: no arm. */
+  setArm(a) {
+    if (this.armMesh) {
+      this.scene.remove(this.armMesh);
+      this.armMesh.geometry.dispose();
+      this.armMesh = null;
+    }
+    this.arm = a && a.arm_vertices ? a : null;
+    if (!this.arm) return;
+    const geometry = new THREE.BufferGeometry();
+    geometry.setAttribute('position',
+      new THREE.BufferAttribute(new Float32Array(this.arm.arm_vertices.length), 3));
+    geometry.setIndex(new THREE.BufferAttribute(new Uint32Array(this.arm.arm_faces), 1));
+    this.armMesh = new THREE.Mesh(geometry, new THREE.MeshStandardMaterial(
+      { color: ARM, transparent: true, opacity: 0.6, side: THREE.DoubleSide }));
+    this.armMesh.visible = false;
+    this.scene.add(this.armMesh);
+  }
+
+  /** Pose the arm at viewpoint k: each vertex by its link's frame at that view. */
+  poseArm(k) {
+    if (!this.armMesh) return;
+    this.armMesh.visible = k !== null && !this.frame;
+    if (k === null) return;
+    const { arm_vertices: v, arm_link: link, arm_frames: f } = this.arm;
+    const links = f.length / 16 / this.viewpoints.length;
+    const pos = this.armMesh.geometry.getAttribute('position');
+    for (let i = 0; i < link.length; i++) {
+      const o = 16 * (k * links + link[i]);
+      const [x, y, z] = [v[3 * i], v[3 * i + 1], v[3 * i + 2]];
+      for (let r = 0; r < 3; r++) {
+        pos.array[3 * i + r] = f[o + 4 * r] * x + f[o + 4 * r + 1] * y + f[o + 4 * r + 2] * z + f[o + 4 * r + 3];
+      }
+    }
+    pos.needsUpdate = true;
+    this.armMesh.geometry.computeVertexNormals();
+    this.armMesh.geometry.computeBoundingSphere();
+  }
+
+  /** Whether the arm is drawn and the box of its posed vertices (null without an arm). */
+  armState() {
+    if (!this.armMesh) return null;
+    const box = new THREE.Box3().setFromBufferAttribute(this.armMesh.geometry.getAttribute('position'));
+    return { visible: this.armMesh.visible, min: box.min.toArray(), max: box.max.toArray() };
+  }
+
   select(k) {
     this.selected = k;
+    this.poseArm(k);
     this.highlight.geometry.dispose();
     this.highlight.geometry = new THREE.BufferGeometry().setFromPoints(
       k === null ? [] : this.frustumLines(k, true));
@@ -331,6 +380,7 @@ export class PlanScene {
     this.frusta.visible = this.pins.visible = v.frusta && !through;
     this.highlight.visible = v.frusta && !through;
     this.tour.visible = v.tour && !through;
+    if (this.armMesh) this.armMesh.visible = this.selected !== null && !through;
     this.labels.forEach((l) => { l.visible = v.labels && !through; });
   }
 

@@ -12,6 +12,8 @@ from typing import Annotated, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
+from vpp_core.robot.model import RobotSpec, TurntableSpec
+
 TRANSFORM_TOL = 1e-6
 """Largest |RᵀR - I| entry and |last row - (0, 0, 0, 1)| of a rigid 4×4 transform."""
 IDENTITY: list[list[float]] = np.eye(4).tolist()
@@ -136,11 +138,27 @@ class Setup(_Strict):
     keep_out: list[KeepOut] = Field(
         default_factory=list, max_length=256, description="volumes camera centres may not enter"
     )
+    robot: RobotSpec | None = Field(
+        None,
+        description="the arm that carries the camera: a bundled arm or URDF, its base in the "
+        "cell, the camera on its flange (docs/robot.md); every view is one it can reach",
+    )
+    turntable: TurntableSpec | None = Field(
+        None,
+        description="or the part on a rotary table in front of a fixed camera (docs/robot.md): "
+        "the candidates are its (table angle, station) grid",
+    )
 
     @field_validator("part_to_cell")
     @classmethod
     def _rigid(cls, value: list[list[float]]) -> list[list[float]]:
         return check_rigid(value, "part_to_cell")
+
+    @model_validator(mode="after")
+    def _one_carrier(self) -> Setup:
+        if self.robot is not None and self.turntable is not None:
+            raise ValueError("give a robot or a turntable, not both")
+        return self
 
     def meshes(self) -> list[MeshShape]:
         """Every mesh the setup references: fixtures, then keep-out meshes."""

@@ -71,10 +71,12 @@ def adapt(
     threads: int | None = None,
     allowed: Allowed | None = None,
     deadline: float = float("inf"),
+    keep: Callable[[Viewpoints], Viewpoints] | None = None,
 ) -> Pool:
     """Grow the candidate pool where quick covers need it (see module docstring); new cameras
-    only where `allowed` (the setup's vpp_core.cell.reach predicate) lets them be; no round
-    starts after `deadline` (time.perf_counter() seconds)."""
+    only where `allowed` (the setup's vpp_core.cell.reach predicate) lets them be, and only
+    those `keep` keeps (the setup's robot: vpp_core.plan.robotplan); no round starts after
+    `deadline` (time.perf_counter() seconds)."""
     spec = request.candidates
     if not isinstance(spec, CandidateGenerator) or not spec.adaptive:
         return Pool(views, trace, [])
@@ -93,6 +95,7 @@ def adapt(
         new = aimed_views(
             part, request, views, model, cover, backend, seed=spec.seed + k, allowed=allowed
         )
+        new = new if keep is None else keep(new)
         rounds.append(_round(k, len(new), len(views), cover, start))
         if not len(new):
             break

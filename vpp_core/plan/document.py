@@ -13,6 +13,7 @@ from vpp_core.plan.cycle import Objective, TourOut
 from vpp_core.plan.diagnostics import Diagnostics
 from vpp_core.plan.metrics import Metrics
 from vpp_core.plan.regions import Region, check_regions, finest
+from vpp_core.plan.robotdoc import RobotCounts, RobotOut
 from vpp_core.trace.rays import DEFAULT_BACKEND, BackendName
 
 Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
@@ -249,6 +250,9 @@ class ViewpointOut(CandidateOut):
 
     camera_to_world: list[list[float]]
     cell: CellPose | None = Field(None, description="the pose in the cell frame (with a setup)")
+    joints: list[float] | None = None
+    """With a robot or turntable in the setup: its joint values at this view (deg; mm for
+    prismatic joints; a turntable's table angle, linear axis offset and camera roll)."""
 
 
 class CandidateInfo(BaseModel):
@@ -267,6 +271,9 @@ class CandidateInfo(BaseModel):
     standoff_mm: float | None = None
     added: int = 0
     """Candidates added by the adaptive rounds (their ids follow the generated ones)."""
+    robot: RobotCounts | None = None
+    """With a robot or turntable: the poses its reach was computed for (generator and
+    adaptive rounds) and those dropped by reason (no_ik, joint_limit, collision)."""
 
 
 class AdaptiveRound(BaseModel):
@@ -382,6 +389,7 @@ class Timings(BaseModel):
     metrics: float = 0.0
     diagnostics: float = 0.0
     setup: float = 0.0  # what the setup hides (setup_occluded), with a setup only
+    robot: float = 0.0  # joints of the views and the joint-space tour, with a robot only
 
 
 class RaysInfo(BaseModel):
@@ -423,5 +431,7 @@ class PlanDocument(BaseModel):
     adaptive: list[AdaptiveRound] = []
     partial: PartialInfo | None = None
     diagnostics: Diagnostics | None = None
+    robot: RobotOut | None = None
+    """With a robot or turntable in the setup: what its reach dropped and its joint tour."""
     rays: RaysInfo
     timings_s: Timings

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import time
+from collections import Counter
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
@@ -55,6 +56,14 @@ from vpp_core.plan.metrics import evaluate, region_metrics
 from vpp_core.plan.objective import by_objective
 from vpp_core.plan.regions import FaceTargets, Region, face_targets, mandatory_weights
 from vpp_core.plan.regionsdoc import region_members, regions_info
+from vpp_core.plan.robotplan import (
+    annotate_robot,
+    check_reachable,
+    counted,
+    reachable_candidates,
+    reachable_filter,
+    table_candidates,
+)
 from vpp_core.plan.tour import path_length
 from vpp_core.plan.warm import warm
 from vpp_core.trace.rays import RayBackend
@@ -96,6 +105,13 @@ def candidates_for(
             spec.retry_tilt_deg or 0.0,
             spec.standoff_mm,
         )
+        table = table_candidates(
+            part,
+            cell,
+            CandidateInfo(source="generated", requested=spec.count, generated=0, seed=spec.seed),
+        )
+        if table is not None:  # a turntable: its grid of (angle, station) views
+            return table
         gen = generate(part, request.sensor, settings, backend, allowed(cell))
         info = CandidateInfo(
             source="generated",
@@ -110,11 +126,12 @@ def candidates_for(
             retry_tilt_deg=spec.retry_tilt_deg,
             standoff_mm=gen.standoff_mm,
         )
-        return gen.views, info
+        return reachable_candidates(part, cell, gen.views, info)  # the robot's, turned
     n = len(spec.viewpoints)
     info = CandidateInfo(source="explicit", requested=n, generated=n)
     views = explicit_viewpoints(spec.viewpoints)
     check_explicit(cell, views)
+    check_reachable(part, cell, views)
     return views, info
 
 
@@ -326,6 +343,8 @@ def finish(
         free = request.model_copy(update={"setup": None})
         with clock.stage("setup"):
             annotate(doc, part, request, cell, views, trace, _generate(part, free))
+        with clock.stage("robot"):
+            annotate_robot(doc, part, request, cell)
     return doc
 
 
@@ -366,6 +385,7 @@ def grow(
         return solve(model, p.areas, t, settings, threads, None, must)
 
     backend = backend or setup_backend(part, request, cell, trace.backend)
+    tally: Counter[str] = Counter()  # the robot's drops in the rounds
     deadline = time.perf_counter() + ADAPT_SHARE * request.solver.time_limit_s - spent_s
     pool = adapt(
         part,
@@ -378,9 +398,11 @@ def grow(
         threads=threads,
         allowed=allowed(cell),
         deadline=deadline,
+        keep=reachable_filter(part, cell, tally),
     )
     added = len(pool.views) - len(views)
-    return pool.views, info.model_copy(update={"added": added}), pool.trace, pool.rounds
+    info = counted(info.model_copy(update={"added": added}), tally)
+    return pool.views, info, pool.trace, pool.rounds
 
 
 def _cover_rows(

@@ -149,7 +149,7 @@ def plan_scene(part: Part, doc: PlanDocument, counts: sp.sparray) -> bytes:
             for r in doc.regions.regions
         ]
     return pack(
-        arrays,
+        {**arrays, **arm_of(doc)},
         **meta,
         faces=part.n_faces,
         views=selected.tolist(),
@@ -190,6 +190,17 @@ def selected_face_results(
     state[ids[part.counted[ids]]] = UNCOVERABLE
     state[~part.counted] = EXCLUDED
     return FaceResults(results.resolution_mm, state, results.view_offsets, results.view_faces)
+
+
+def arm_of(doc: PlanDocument) -> dict[str, np.ndarray]:
+    """The arm at each selected viewpoint (vpp_core.report.armscene), when the plan has one."""
+    setup = doc.setup
+    joints = [v.joints for v in doc.viewpoints]
+    if setup is None or setup.robot is None or not joints or any(j is None for j in joints):
+        return {}
+    from vpp_core.report.armscene import arm_arrays
+
+    return arm_arrays(setup.robot, np.asarray(setup.part_to_cell), np.array(joints))
 
 
 def geometry_scene(part: Part) -> bytes:

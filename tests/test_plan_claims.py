@@ -8,7 +8,6 @@ itself, and solves the cover again with scipy's milp.
 from __future__ import annotations
 
 import itertools
-import math
 
 import numpy as np
 import pytest
@@ -16,6 +15,7 @@ import scipy.sparse as sp
 import trimesh
 from scipy.optimize import Bounds, LinearConstraint, milp
 
+from tests.pixelrays import camera_rays, valid_counts
 from vpp_core.camera.sensor import Sensor
 from vpp_core.mesh.part import Part, part_from_arrays
 from vpp_core.plan.document import CandidateGenerator, PlanDocument, PlanRequest, Target
@@ -57,24 +57,13 @@ def recount_column(part: Part, sensor: Sensor, m: np.ndarray) -> np.ndarray:
     """One column of `recount`: the valid rays per face of the camera at 4 × 4 `m`."""
     if part.id not in MESHES:
         MESHES[part.id] = trimesh.Trimesh(part.vertices, part.faces, process=False)
-    u = (np.arange(sensor.width_px) + 0.5 - sensor.width_px / 2) / sensor.fx
-    v = (np.arange(sensor.height_px) + 0.5 - sensor.height_px / 2) / sensor.fy
-    uu, vv = np.meshgrid(u, v)
-    cam = np.column_stack([uu.ravel(), vv.ravel(), np.ones(uu.size)])
+    cam = camera_rays(sensor)
     dirs = cam @ m[:3, :3].T
     origin = np.tile(m[:3, 3], (len(dirs), 1))
     tri, ray, loc = MESHES[part.id].ray.intersects_id(
         origin, dirs, multiple_hits=False, return_locations=True
     )
-    depth = (loc - m[:3, 3]) @ m[:3, 2]
-    unit = dirs[ray] / np.linalg.norm(dirs[ray], axis=1)[:, None]
-    cos = np.abs(np.einsum("ij,ij->i", unit, part.normals[tri]))
-    ok = (
-        (depth >= sensor.near_mm)
-        & (depth <= sensor.far_mm)
-        & (cos >= math.cos(math.radians(sensor.max_incidence_deg)))
-    )
-    return np.bincount(part.representative[tri[ok]], minlength=part.n_faces)
+    return valid_counts(part, sensor, m, dirs, (tri, ray, loc))
 
 
 def brute_or_milp_optimum(a: np.ndarray) -> int:

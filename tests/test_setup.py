@@ -20,6 +20,7 @@ from pydantic import ValidationError
 from scipy.spatial.transform import Rotation
 
 from cli.main import main
+from tests.pixelrays import camera_rays, valid_counts
 from vpp_core.camera.sensor import Sensor
 from vpp_core.cell.geometry import resolve
 from vpp_core.cell.setup import MeshShape, Setup
@@ -76,10 +77,7 @@ def recount(part: Part, sensor: Sensor, c2w: np.ndarray, occluders: list[np.ndar
     tris = [part.vertices[part.faces], *occluders]
     allv = np.vstack([t.reshape(-1, 3) for t in tris])
     mesh = trimesh.Trimesh(allv, np.arange(len(allv)).reshape(-1, 3), process=False)
-    u = (np.arange(sensor.width_px) + 0.5 - sensor.width_px / 2) / sensor.fx
-    v = (np.arange(sensor.height_px) + 0.5 - sensor.height_px / 2) / sensor.fy
-    uu, vv = np.meshgrid(u, v)
-    cam = np.column_stack([uu.ravel(), vv.ravel(), np.ones(uu.size)])
+    cam = camera_rays(sensor)
     cols = []
     for m in c2w:
         dirs = cam @ m[:3, :3].T
@@ -89,15 +87,7 @@ def recount(part: Part, sensor: Sensor, c2w: np.ndarray, occluders: list[np.ndar
         )
         on_part = tri < part.n_faces
         tri, ray, loc = tri[on_part], ray[on_part], loc[on_part]
-        depth = (loc - m[:3, 3]) @ m[:3, 2]
-        unit = dirs[ray] / np.linalg.norm(dirs[ray], axis=1)[:, None]
-        cos = np.abs(np.einsum("ij,ij->i", unit, part.normals[tri]))
-        ok = (
-            (depth >= sensor.near_mm)
-            & (depth <= sensor.far_mm)
-            & (cos >= math.cos(math.radians(sensor.max_incidence_deg)))
-        )
-        cols.append(np.bincount(part.representative[tri[ok]], minlength=part.n_faces))
+        cols.append(valid_counts(part, sensor, m, dirs, (tri, ray, loc)))
     return np.column_stack(cols)
 
 

@@ -21,9 +21,9 @@ from service.models import (
     RelatedPlans,
     StudySubmit,
 )
+from service.parsing import parse_upload
 from vpp_core.errors import NotFoundError, RegionError, VppError
 from vpp_core.mesh.part import Part
-from vpp_core.mesh.tessellate import load_part
 from vpp_core.plan.document import PlanRequest
 from vpp_core.plan.pipeline import check_request
 from vpp_core.plan.robotplan import check_request_reach
@@ -62,10 +62,11 @@ def upload_mesh(
     `max_face_area_mm2`, each if given); the same geometry again gives the same id and stores
     nothing."""
     file_type = fmt or PurePath(filename or "").suffix.lstrip(".") or "stl"
-    part = load_part(
+    part = parse_upload(
         data,
         file_type,
         units,
+        child=len(data) >= settings.parse_child_bytes,
         remesh_mm=remesh_mm,
         max_face_area_mm2=max_face_area_mm2,
         max_faces=settings.max_faces,

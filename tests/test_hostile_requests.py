@@ -172,3 +172,45 @@ def test_the_values_count_follows_max_candidates(svc_env: dict[str, str]) -> Non
     with TestClient(create_app(Settings(max_candidates=10))) as small:
         r = small.post("/v1/plans", content=viewpoints_body(ZERO, 200), headers=JSON)
         assert "JSON values" in refused(r, 422)["detail"]
+
+
+def test_a_big_upload_is_parsed_in_a_child_process(
+    svc_env: dict[str, str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """From VPP_PARSE_CHILD_BYTES on, an upload is parsed in a spawned child: the API's own
+    load_part (broken here) is not called for a 12.8 MB OBJ (327 k faces), which gets the
+    same id as parsed here, while /livez keeps answering; a small STL is parsed in-process."""
+    import trimesh
+
+    from vpp_core.mesh import tessellate
+    from vpp_core.mesh.tessellate import load_part
+
+    data = trimesh.creation.icosphere(subdivisions=7).export(file_type="obj").encode()
+    want = load_part(data, "obj", "mm").id
+    calls: list[int] = []
+
+    def broken(blob: bytes, *args: Any, **kwargs: Any) -> Any:
+        calls.append(len(blob))
+        raise RuntimeError("parsed in the API process")
+
+    monkeypatch.setattr(tessellate, "load_part", broken)
+    monkeypatch.setenv("VPP_PARSE_CHILD_BYTES", str(len(data)))
+    with serving(create_app(Settings())) as base:
+        worst, answers = 0.0, []
+        files = {"file": ("sphere.obj", data)}
+        post = lambda: answers.append(httpx.post(base + "/v1/meshes", files=files, timeout=120))  # noqa: E731
+        poster = threading.Thread(target=post)
+        poster.start()
+        with httpx.Client() as client:
+            while poster.is_alive():
+                start = time.perf_counter()
+                assert client.get(base + "/livez").status_code == 200
+                worst = max(worst, time.perf_counter() - start)
+                time.sleep(0.01)
+        poster.join()
+        in_api = list(calls)
+        small = httpx.post(base + "/v1/meshes", files={"file": ("s.stl", sample_stl())})
+    assert answers[0].status_code == 201, answers[0].text
+    assert answers[0].json()["id"] == want and not in_api
+    assert small.status_code == 500 and calls == [len(sample_stl())]  # small: in-process
+    assert worst < 2.0, f"/livez took {worst:.2f} s while a child parsed the upload"

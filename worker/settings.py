@@ -32,6 +32,10 @@ class Settings(BaseSettings):
     `max_candidates` explicit viewpoints with room to spare (about 250 bytes each at full float
     precision, `up` included); a body with more JSON values than `max_candidates` viewpoints
     take is refused by counting, unparsed (service/limits.py); raise it with `max_candidates`."""
+    parse_child_bytes: int = Field(8 * 2**20, ge=0)
+    """Uploads of at least this many bytes are parsed in a child process of their own
+    (service/parsing.py): trimesh parses a big OBJ or ASCII PLY in C calls that hold the GIL
+    for seconds and leaves memory the API would not give back; 0: every upload."""
     max_uploads: int = Field(2, ge=1)
     """Mesh uploads the API receives and parses at once; the next waits for a slot with its
     body unread (503 with Retry-After after 60 s), so the memory of uploads stays bounded (each

@@ -286,7 +286,8 @@ def scene_gz(store: Store, plan: str) -> bytes:
     doc = art.get_plan(store, plan)
     mesh_id, request = art.get_request(store, plan)
     counts = art.get_trace(store, art.plan_trace_id(mesh_id, request, doc)).counts
-    return art.put_scene(store, plan, plan_scene(art.get_part(store, mesh_id), doc, counts))
+    cell = art.get_cell(store, request.setup)
+    return art.put_scene(store, plan, plan_scene(art.get_part(store, mesh_id), doc, counts, cell))
 
 
 def related_plans(store: Store, plan: str) -> RelatedPlans:

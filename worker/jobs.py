@@ -153,7 +153,7 @@ def _plan(ctx: Context, plan: str) -> dict[str, Any]:
         cell=cell,
     )
     ctx.meta.update(force=True, stage="plots")
-    scene = plan_scene(part, doc, trace.counts)
+    scene = plan_scene(part, doc, trace.counts, cell)
     faces = unpack(scene)[1]  # the part in cameras.png wears the viewer's r* colours
     pngs = plan_plots(part, doc, faces=(faces["state"], faces["resolution_mm"]))
     for name, png in pngs.items():  # before the document: it means done

@@ -25,7 +25,14 @@ const NB = '\u00a0'; // a number and its unit never part at a line end
 const fmt = (x, d = 3) => (x === null || x === undefined ? '—' : Number(x).toFixed(d));
 const pct = (x) => `${(100 * x).toFixed(1)}${NB}%`;
 const mm = (x, d = 3) => `${fmt(x, d)}${NB}mm`;
+const sec = (x) => `${fmt(x, 2)}${NB}s`;
+/** A tour's cycle time: "C s = T s travel + D s dwell" (TourOut or RobotTourOut, seconds). */
+const cycle = (t) => `${sec(t.cycle_time_s)} = ${sec(t.travel_s)} travel + ${sec(t.dwell_s)} dwell`;
 const TIPS = {
+  'cycle time': 'The tour once: the dwell at every viewpoint plus the travel of every leg (from '
+    + 'and back to home where one is set) at the objective\'s speed and acceleration.',
+  'joint cycle': 'The same tour in the robot\'s joint space: each leg as long as its slowest '
+    + 'joint at its speed limit, plus the dwell.',
   'mean C': 'The paper\'s eq. 4: per counted face, the share of the selected viewpoints that '
     + 'see it, averaged over the faces (1 = every viewpoint sees every face).',
   'resolution met': 'Share of the counted area (and faces) whose achieved resolution r* is at '
@@ -113,6 +120,8 @@ async function load(plan) {
   Object.assign(view, { problems: $('problems').checked, states: a.state }); // painted once, next
   view.setPlan(colours, doc.viewpoints, doc.sensor, a.view_offsets, a.view_faces);
   view.setArm(a);
+  view.setSetup(a);
+  $('setup-toggle').hidden = !view.setup;
   if (first) view.fit(false);
   $('summary').classList.remove('pending');
   summary(doc);
@@ -146,6 +155,8 @@ function summary(doc) {
     ['median r*', mm(m.resolution.median_mm)],
     ['uncoverable', `${doc.uncoverable.faces}${NB}faces, ${fmt(doc.uncoverable.area_mm2, 2)}${NB}mm²`],
     ['tour', mm(doc.tour_length_mm, 0)],
+    ...(doc.tour ? [['cycle time', cycle(doc.tour)]] : []),
+    ...(doc.robot?.tour ? [['joint cycle', cycle(doc.robot.tour)]] : []),
     ['mean C', fmt(m.paper.C_mean, 4)],
   ];
   for (const g of m.regions || []) {
@@ -302,7 +313,7 @@ function wire() {
     view.setProblemsOnly(e.target.checked, state.scene.arrays.state);
   };
   $('clear').onclick = () => select(null);
-  for (const what of ['frusta', 'tour', 'labels']) {
+  for (const what of ['frusta', 'tour', 'labels', 'setup']) {
     $(`show-${what}`).onchange = (e) => view.show(what, e.target.checked);
   }
   $('shading').onchange = (e) => view.setShading(e.target.checked);
@@ -359,6 +370,9 @@ const api = {
   partBox: () => view.partBox(),
   /** The arm drawn at the selected viewpoint: {visible, min, max} of its vertices (null: no arm). */
   arm: () => view.armState(),
+  /** The setup drawn: {shown, floor, fixtures, keep_out}, each {visible, min, max} (world mm)
+   * or null; null when the plan has no floor, fixtures or keep-out meshes. */
+  setup: () => view.setupState(),
   problemsOnly: (on) => { $('problems').checked = on; $('problems').onchange({ target: $('problems') }); },
   setShading: (on) => { $('shading').checked = on; view.setShading(on); },
   show: (what, on) => view.show(what, on),

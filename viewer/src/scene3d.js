@@ -11,6 +11,12 @@ const SELECTED = 0xe8590c;
 const TOUR = 0x7048e8;
 const PENDING = 200; // the part's grey while a plan loads (no colour claims anything)
 const ARM = 0x868e96; // the robot arm posed at the selected viewpoint
+const FLOOR = 0x8c939c; // the setup's floor: a translucent plane with a grid ...
+const FLOOR_OPACITY = 0.18;
+const FLOOR_GRID = 20; // ... of this many cells a side
+const SOLID = 0x7b8088; // fixtures, and keep-out meshes and boxes (paler), translucent grey
+const SOLID_OPACITY = 0.45;
+const KEEP_OUT_OPACITY = 0.2;
 const DIM = 255; // faces the selected camera does not see fade towards white, keeping a tint
 const DIM_MIX = 0.72;
 const GLYPH = 0.25; // a camera glyph is a pyramid this many part diagonals deep (≤ near_mm)
@@ -325,6 +331,69 @@ export class PlanScene {
     this.scene.add(this.armMesh);
   }
 
+  /** The setup from the plan scene's triangle soups (T·9 float32 mm, part frame): the floor
+   * (setup_floor, a square) as a translucent plane with a grid, fixtures (setup_fixtures) and
+   * keep-out volumes (setup_keep_out) as translucent grey solids; none: nothing drawn. */
+  setSetup(a) {
+    if (this.setup) {
+      this.scene.remove(this.setup);
+      this.setup.traverse((o) => { o.geometry?.dispose(); o.material?.dispose(); });
+    }
+    this.setup = null;
+    if (!a || !(a.setup_floor || a.setup_fixtures || a.setup_keep_out)) return;
+    this.setup = new THREE.Group();
+    this.setup.name = 'setup';
+    const solid = (name, triangles, colour, opacity) => {
+      const geometry = new THREE.BufferGeometry();
+      geometry.setAttribute('position', new THREE.BufferAttribute(new Float32Array(triangles), 3));
+      geometry.computeVertexNormals();
+      const mesh = new THREE.Mesh(geometry, new THREE.MeshLambertMaterial({
+        color: colour, transparent: true, opacity, depthWrite: false, side: THREE.DoubleSide }));
+      mesh.name = name;
+      mesh.renderOrder = 1; // after the part, so that it shows through
+      this.setup.add(mesh);
+    };
+    if (a.setup_floor) {
+      solid('floor', a.setup_floor, FLOOR, FLOOR_OPACITY);
+      this.setup.add(this.floorGrid(a.setup_floor));
+    }
+    if (a.setup_fixtures) solid('fixtures', a.setup_fixtures, SOLID, SOLID_OPACITY);
+    if (a.setup_keep_out) solid('keep_out', a.setup_keep_out, SOLID, KEEP_OUT_OPACITY);
+    this.scene.add(this.setup);
+    this.applyVisibility();
+  }
+
+  /** Grid lines over the floor square (its two triangles: corners 0, 1, 2 and 0, 2, 5). */
+  floorGrid(t) {
+    const c = [0, 1, 2, 5].map((i) => new THREE.Vector3(t[3 * i], t[3 * i + 1], t[3 * i + 2]));
+    const points = [];
+    for (let i = 0; i <= FLOOR_GRID; i++) {
+      const s = i / FLOOR_GRID;
+      points.push(c[0].clone().lerp(c[1], s), c[3].clone().lerp(c[2], s));
+      points.push(c[0].clone().lerp(c[3], s), c[1].clone().lerp(c[2], s));
+    }
+    const grid = new THREE.LineSegments(new THREE.BufferGeometry().setFromPoints(points),
+      new THREE.LineBasicMaterial({ color: FLOOR, transparent: true, opacity: 0.5, depthWrite: false }));
+    grid.name = 'floor-grid';
+    grid.renderOrder = 1;
+    return grid;
+  }
+
+  /** The setup drawn: {shown, floor, fixtures, keep_out} each null or {visible, min, max}, the
+   * world-space box of its vertices (mm); null without a setup. */
+  setupState() {
+    if (!this.setup) return null;
+    const out = { shown: this.setup.visible };
+    for (const name of ['floor', 'fixtures', 'keep_out']) {
+      const o = this.setup.getObjectByName(name);
+      if (!o) { out[name] = null; continue; }
+      o.updateMatrixWorld(true);
+      const box = new THREE.Box3().setFromObject(o);
+      out[name] = { visible: o.visible && this.setup.visible, min: box.min.toArray(), max: box.max.toArray() };
+    }
+    return out;
+  }
+
   /** Pose the arm at viewpoint k: each vertex by its link's frame at that view. */
   poseArm(k) {
     if (!this.armMesh) return;
@@ -375,12 +444,13 @@ export class PlanScene {
 
   /** What is drawn: the toggles, and while looking through a camera none of the others. */
   applyVisibility() {
-    const v = { frusta: true, tour: true, labels: true, ...this.visible };
+    const v = { frusta: true, tour: true, labels: true, setup: true, ...this.visible };
     const through = this.frame !== null && this.frame !== undefined;
     this.frusta.visible = this.pins.visible = v.frusta && !through;
     this.highlight.visible = v.frusta && !through;
     this.tour.visible = v.tour && !through;
     if (this.armMesh) this.armMesh.visible = this.selected !== null && !through;
+    if (this.setup) this.setup.visible = v.setup;
     this.labels.forEach((l) => { l.visible = v.labels && !through; });
   }
 

@@ -20,6 +20,8 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
+from vpp_core.cell.geometry import Cell, transform
+from vpp_core.cell.scene import floor_quad
 from vpp_core.cover.density import density_matrix, meets
 from vpp_core.errors import VppError
 from vpp_core.mesh.part import Part
@@ -133,8 +135,11 @@ def unpack(data: bytes) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
     return doc, arrays
 
 
-def plan_scene(part: Part, doc: PlanDocument, counts: sp.sparray) -> bytes:
-    """The packed per-face results of the plan `doc` on `part` with R (M, N)."""
+def plan_scene(
+    part: Part, doc: PlanDocument, counts: sp.sparray, cell: Cell | None = None
+) -> bytes:
+    """The packed per-face results of the plan `doc` on `part` with R (M, N), and the
+    setup `cell`'s floor, fixtures and keep-out meshes to draw (`setup_arrays`)."""
     selected = np.array([v.id for v in doc.viewpoints], dtype=np.int64)
     region, target, ignored = face_regions(doc, part.n_faces)
     counted = part.counted & ~ignored
@@ -149,7 +154,7 @@ def plan_scene(part: Part, doc: PlanDocument, counts: sp.sparray) -> bytes:
             for r in doc.regions.regions
         ]
     return pack(
-        {**arrays, **arm_of(doc)},
+        {**arrays, **arm_of(doc), **setup_arrays(part, doc, cell)},
         **meta,
         faces=part.n_faces,
         views=selected.tolist(),
@@ -190,6 +195,44 @@ def selected_face_results(
     state[ids[part.counted[ids]]] = UNCOVERABLE
     state[~part.counted] = EXCLUDED
     return FaceResults(results.resolution_mm, state, results.view_offsets, results.view_faces)
+
+
+FLOOR_MARGIN = 0.25
+"""The floor drawn reaches this share of the drawn things' extent beyond them on every side."""
+
+
+def setup_arrays(part: Part, doc: PlanDocument, cell: Cell | None) -> dict[str, np.ndarray]:
+    """The setup for drawing, as float32 triangle soups (T, 3, 3) mm in the part frame:
+    `setup_floor` (2 triangles: a square of the floor plane under the part, its fixtures and
+    the plan's cameras, FLOOR_MARGIN of their extent beyond them), `setup_fixtures` and
+    `setup_keep_out` (meshes, and boxes as 12 triangles each); only those the setup has."""
+    if cell is None:
+        return {}
+    out: dict[str, np.ndarray] = {}
+    to_part = cell.cell_to_part
+    fixtures = [s.vertices[s.faces] for s in cell.fixtures]
+    keep_out = [s.vertices[s.faces] for s in cell.keep_out_meshes]
+    keep_out += [box_triangles(b) for _, b in cell.keep_out_boxes]
+    if cell.setup.floor is not None:
+        points = [part.vertices, np.array([v.position for v in doc.viewpoints]).reshape(-1, 3)]
+        points += [transform(to_part, t.reshape(-1, 3)) for t in fixtures]
+        p = np.vstack(points)
+        xy = cell.to_cell(p)[:, :2]
+        reach = FLOOR_MARGIN * float(np.linalg.norm(np.ptp(xy, axis=0)))
+        quad = transform(to_part, floor_quad(cell, p, reach))
+        out["setup_floor"] = quad[[0, 1, 2, 0, 2, 3]].reshape(2, 3, 3).astype(np.float32)
+    for name, soups in (("setup_fixtures", fixtures), ("setup_keep_out", keep_out)):
+        if soups:
+            tri = transform(to_part, np.vstack(soups).reshape(-1, 3))
+            out[name] = tri.reshape(-1, 3, 3).astype(np.float32)
+    return out
+
+
+def box_triangles(box: np.ndarray) -> np.ndarray:
+    """(12, 3, 3) the faces of the axis-aligned box (2, 3) [min, max] as triangles."""
+    corners = np.array([[box[(i >> k) & 1, k] for k in range(3)] for i in range(8)])
+    quads = [(0, 2, 3, 1), (4, 5, 7, 6), (0, 1, 5, 4), (2, 6, 7, 3), (0, 4, 6, 2), (1, 3, 7, 5)]
+    return np.array([corners[[a, b, c, a, c, d]] for a, b, c, d in quads]).reshape(12, 3, 3)
 
 
 def arm_of(doc: PlanDocument) -> dict[str, np.ndarray]:

@@ -348,7 +348,10 @@ export class PlanScene {
       geometry.setAttribute('position', new THREE.BufferAttribute(new Float32Array(triangles), 3));
       geometry.computeVertexNormals();
       const mesh = new THREE.Mesh(geometry, new THREE.MeshLambertMaterial({
-        color: colour, transparent: true, opacity, depthWrite: false, side: THREE.DoubleSide }));
+        color: colour, transparent: true, opacity, depthWrite: false, side: THREE.DoubleSide,
+        // pushed back in depth: where it touches the part (the floor under it, a clamp on
+        // it) the part's face is drawn, not streaks of both
+        polygonOffset: true, polygonOffsetFactor: 1, polygonOffsetUnits: 4 }));
       mesh.name = name;
       mesh.renderOrder = 1; // after the part, so that it shows through
       this.setup.add(mesh);

@@ -251,6 +251,14 @@ def test_the_viewer_draws_the_arm_at_the_selected_viewpoint(
     assert (lo <= flange + 1).all() and (hi >= flange - 1).all()
     page.js("window.vppViewer.select(null)")
     assert page.js("window.vppViewer.arm()")["visible"] is False
+    # the joint-space cycle is the document's; the floor z = 0 of the cell is z = 0 here too
+    t = doc["robot"]["tour"]
+    assert page.js("window.vppViewer.summary")["joint cycle"] == (
+        f"{t['cycle_time_s']:.2f}\u00a0s = {t['travel_s']:.2f}\u00a0s travel"
+        f" + {t['dwell_s']:.2f}\u00a0s dwell"
+    )
+    floor = page.js("window.vppViewer.setup()")["floor"]
+    assert floor["visible"] and floor["min"][2] == floor["max"][2] == pytest.approx(0, abs=1e-4)
     assert page.errors == []
 
 

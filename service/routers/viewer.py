@@ -85,7 +85,8 @@ def get_plan_scene(
     if_none_match: Annotated[str | None, Header()] = None,
     accept_encoding: Annotated[str | None, Header()] = None,
 ) -> Response:
-    """Per-face achieved resolution and state, and the faces each viewpoint sees (binary)."""
+    """Per-face achieved resolution and state, the faces each viewpoint sees, and with a setup
+    its floor, fixtures and keep-out volumes as triangles in the part frame (binary)."""
     gzipped = _accepts_gzip(accept_encoding)
     return _binary(
         (plan_id, "plan"), if_none_match, partial(_scene, store, plan_id, gzipped), gzipped

@@ -8,6 +8,8 @@ block and box mapped into the part frame with numpy), not from the service's geo
 from __future__ import annotations
 
 import json
+import os
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -17,6 +19,7 @@ from tests.test_service_jobs import submit, upload_sample, wait
 from tests.test_setup import SMALL, apply, fixture_setup, rigid, stl
 from tests.test_viewer import Page, browser, live  # noqa: F401  (fixtures)
 from vpp_core.report.scene import unpack
+from worker import artifacts as art
 
 pytestmark = pytest.mark.slow
 KEEP_OUT = {"min": [60.0, -20.0, 0.0], "max": [80.0, 20.0, 40.0]}
@@ -86,6 +89,13 @@ def test_the_floor_fixture_and_keep_out_box_are_drawn_where_the_setup_puts_them(
     _, arrays = unpack(client.get(f"/v1/plans/{plan}/scene").content)
     assert arrays["setup_floor"].shape == (2, 3, 3) and arrays["setup_fixtures"].dtype == np.float32
     assert arrays["setup_keep_out"].shape == (12, 3, 3)
+    # a scene not stored (an older plan's) is rebuilt from R by the API, the setup with it
+    stored = Path(os.environ["VPP_STORE_URL"]) / art.scene_key(plan)
+    stored.unlink()
+    _, rebuilt = unpack(client.get(f"/v1/plans/{plan}/scene").content)
+    assert stored.is_file()
+    for name in ("setup_floor", "setup_fixtures", "setup_keep_out"):
+        np.testing.assert_array_equal(rebuilt[name], arrays[name])
     # the toggle hides it
     page.page.locator("#show-setup").uncheck()
     assert not page.js("window.vppViewer.setup()")["shown"]

@@ -461,7 +461,9 @@ def test_colours_spread_over_the_plans_range_and_problems_only_pales_the_rest(
     from the finest to the coarsest r*; *problems only* pales exactly the met faces."""
     client, url = live
     mesh = upload_sample(client)
-    body = {"mesh_id": mesh, "sensor": SENSOR, "profile": "paper", "candidates": {"count": 40},
+    # the default profile: the paper plan's problem faces all face away from the opening view
+    body = {"mesh_id": mesh, "sensor": SENSOR, "candidates": {"count": 40},
+            "solver": {"time_limit_s": 10},
             "target": {"resolution_mm": 5.0, "formulation": "visibility"}}  # fmt: skip
     plan = submit(client, body)
     assert wait(client, plan)["status"] == "succeeded"

@@ -31,20 +31,20 @@ class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
 
-class Box(_Strict):
+class RegionBox(_Strict):
     """An axis-aligned box in the part frame (mm)."""
 
     min: Vec3
     max: Vec3
 
     @model_validator(mode="after")
-    def _ordered(self) -> Box:
+    def _ordered(self) -> RegionBox:
         if any(a > b for a, b in zip(self.min, self.max, strict=True)):
             raise ValueError(f"box min {self.min} must not exceed max {self.max} on any axis")
         return self
 
 
-class Sphere(_Strict):
+class RegionSphere(_Strict):
     """A ball in the part frame: centre (mm) and radius (mm)."""
 
     centre: Vec3
@@ -58,8 +58,8 @@ class Region(_Strict):
     faces: list[Annotated[int, Field(ge=0)]] | None = Field(
         None, description="face ids (0-based, in the mesh's face order)"
     )
-    box: Box | None = Field(None, description="faces whose centroid lies in this box")
-    sphere: Sphere | None = Field(None, description="faces whose centroid lies in this ball")
+    box: RegionBox | None = Field(None, description="faces whose centroid lies in this box")
+    sphere: RegionSphere | None = Field(None, description="faces whose centroid lies in this ball")
     label: int | str | None = Field(
         None,
         description="faces carrying this label: an integer, or a group / material / primitive "

@@ -57,23 +57,29 @@ def test_validation_errors_are_capped_with_their_count(api: Any, mesh_id: str) -
     assert len(r.content) < 10_000
 
 
+def livez_while(base: str, request: Any) -> tuple[httpx.Response, float]:
+    """(the answer of `request()`, made in a thread, and the slowest /livez of `base` asked
+    again and again meanwhile, s)."""
+    answers: list[httpx.Response] = []
+    poster = threading.Thread(target=lambda: answers.append(request()))
+    poster.start()
+    worst = 0.0
+    with httpx.Client() as client:
+        while poster.is_alive():
+            start = time.perf_counter()
+            assert client.get(base + "/livez").status_code == 200
+            worst = max(worst, time.perf_counter() - start)
+            time.sleep(0.005)
+    poster.join()
+    return answers[0], worst
+
+
 def test_livez_answers_while_a_big_body_is_validated(svc_env: dict[str, str]) -> None:
     body = b'{"mesh_id":"%s","candidates":[%s]}' % (ZERO.encode(), b",".join([b"{}"] * 16_000))
     with serving(create_app(Settings())) as base:
-        worst, answers = 0.0, []
-        poster = threading.Thread(
-            target=lambda: answers.append(
-                httpx.post(base + "/v1/plans", content=body, headers=JSON, timeout=60)
-            )
-        )
-        poster.start()
-        with httpx.Client() as client:
-            while poster.is_alive():
-                start = time.perf_counter()
-                assert client.get(base + "/livez").status_code == 200
-                worst = max(worst, time.perf_counter() - start)
-        poster.join()
-    refused(answers[0], 422)
+        post = lambda: httpx.post(base + "/v1/plans", content=body, headers=JSON, timeout=60)  # noqa: E731
+        answer, worst = livez_while(base, post)
+    refused(answer, 422)
     assert worst < 0.5, f"/livez took {worst:.2f} s while the body was validated"
 
 
@@ -196,21 +202,12 @@ def test_a_big_upload_is_parsed_in_a_child_process(
     monkeypatch.setattr(tessellate, "load_part", broken)
     monkeypatch.setenv("VPP_PARSE_CHILD_BYTES", str(len(data)))
     with serving(create_app(Settings())) as base:
-        worst, answers = 0.0, []
         files = {"file": ("sphere.obj", data)}
-        post = lambda: answers.append(httpx.post(base + "/v1/meshes", files=files, timeout=120))  # noqa: E731
-        poster = threading.Thread(target=post)
-        poster.start()
-        with httpx.Client() as client:
-            while poster.is_alive():
-                start = time.perf_counter()
-                assert client.get(base + "/livez").status_code == 200
-                worst = max(worst, time.perf_counter() - start)
-                time.sleep(0.01)
-        poster.join()
+        post = lambda: httpx.post(base + "/v1/meshes", files=files, timeout=120)  # noqa: E731
+        answer, worst = livez_while(base, post)
         in_api = list(calls)
         small = httpx.post(base + "/v1/meshes", files={"file": ("s.stl", sample_stl())})
-    assert answers[0].status_code == 201, answers[0].text
-    assert answers[0].json()["id"] == want and not in_api
+    assert answer.status_code == 201, answer.text
+    assert answer.json()["id"] == want and not in_api
     assert small.status_code == 500 and calls == [len(sample_stl())]  # small: in-process
     assert worst < 2.0, f"/livez took {worst:.2f} s while a child parsed the upload"

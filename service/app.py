@@ -77,7 +77,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.settings = settings
     app.state.redis = conn
     app.state.queue = make_queue(conn, settings)
-    app.state.store = open_store(settings.store_url, conn)
+    app.state.store = open_store(settings.store_url, conn, settings.s3_endpoint_url)
     problems.install(app)
     problems.extend_openapi(app, idempotency.document)
     for router in (meshes.router, plans.router, studies.router, jobs.router, health.router):

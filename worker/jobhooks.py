@@ -51,6 +51,7 @@ def _plan_metrics(conn: Redis, plan: str) -> None:
     from worker.settings import get_settings
     from worker.store import open_store
 
-    store = open_store(get_settings().store_url, conn)
+    settings = get_settings()
+    store = open_store(settings.store_url, conn, settings.s3_endpoint_url)
     if store.exists(art.plan_key(plan)):
         metrics.plan_finished(conn, art.get_plan(store, plan))

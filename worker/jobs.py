@@ -88,7 +88,7 @@ class Context:
             raise RuntimeError("not running inside an RQ job")
         settings = get_settings()
         queue = Queue(job.origin, connection=job.connection)
-        store = open_store(settings.store_url, job.connection)
+        store = open_store(settings.store_url, job.connection, settings.s3_endpoint_url)
         return cls(settings, store, job, queue, _Meta(job))
 
 

@@ -158,15 +158,16 @@ class CountedStore:
             raise
 
 
-def open_store(url: str, conn: Redis | None = None) -> Store:
-    """The store at `url`: `file:///dir` or a path, `s3://bucket/prefix`, or `memory://`; its
-    failures counted in the metrics when `conn` (Redis) is given."""
+def open_store(url: str, conn: Redis | None = None, endpoint_url: str | None = None) -> Store:
+    """The store at `url`: `file:///dir` or a path, `s3://bucket/prefix` (at `endpoint_url`,
+    else the default of worker.s3store), or `memory://`; its failures counted in the metrics
+    when `conn` (Redis) is given."""
     parsed = urlparse(url)
     store: Store
     if parsed.scheme in ("", "file"):
         store = FileStore(parsed.path if parsed.scheme else url)
     elif parsed.scheme == "s3":
-        store = S3Store(url)
+        store = S3Store(url, endpoint_url)
     elif parsed.scheme == "memory":
         store = MemoryStore()
     else:

@@ -134,7 +134,7 @@ def dispatch(job_id: str) -> int:
     rq_job = get_current_job()
     assert rq_job is not None, "dispatch runs as an RQ job"
     conn, settings = rq_job.connection, get_settings()
-    store = open_store(settings.store_url, conn)
+    store = open_store(settings.store_url, conn, settings.s3_endpoint_url)
     deadline = time.monotonic() + SETTLE_S
     current = state(conn, store, job_id)
     while current.status == "running" and time.monotonic() < deadline:

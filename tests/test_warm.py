@@ -73,3 +73,20 @@ def test_a_plan_says_compiling_before_its_candidates(monkeypatch: pytest.MonkeyP
     with pytest.raises(Stop):
         pipeline.plan(part, request, progress=lambda *s: seen.append(s))
     assert seen == [("candidates", 0, 1)]
+
+
+def test_a_failed_warm_up_is_logged_and_leaves_the_plan_to_compile(monkeypatch, caplog) -> None:
+    """Warming is a notice, not a stage that can fail a plan: an error in it (a numba cache
+    half written by the warming process beside it, say) is logged and the backend is not
+    taken as warm."""
+    warming = warm_module
+
+    def broken(name: str) -> None:
+        raise RuntimeError("cache index half written")
+
+    monkeypatch.setattr(warming, "trace_tiny", broken)
+    monkeypatch.setattr(warming, "_warmed", set())
+    with caplog.at_level("WARNING", logger="vpp_core.plan.warm"):
+        assert warming.warm("raster") >= 0.0
+    assert "cache index half written" in caplog.text
+    assert "raster" not in warming._warmed

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import os
+import uuid
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -126,7 +127,9 @@ def svc_env(
         "VPP_CHUNK_VIEWS": "10",
         "VPP_THREADS": "1",
         "VPP_RETRY_AFTER_S": "1",
-        "VPP_QUEUE": f"vpp-test-{os.getpid()}",  # two test runs at once do not share jobs
+        # a queue per test: neither two test runs at once nor a worker an earlier test left
+        # behind (with that test's store) take this test's jobs
+        "VPP_QUEUE": f"vpp-test-{os.getpid()}-{uuid.uuid4().hex[:8]}",
         # fair use off but where a test sets it (tests/test_fairuse.py): loads come from one address
         "VPP_RATE_LIMIT": str(10**9),
         "VPP_MAX_ACTIVE_JOBS": str(10**9),

@@ -472,7 +472,8 @@ def test_the_api_restarted_loses_nothing(env, workers, tmp_path) -> None:
             api_proc = serve()
             figure("API SIGKILL -> answering again", time.monotonic() - killed)
             for job in jobs:
-                assert wait(api, job, timeout=60)["status"] == "succeeded"
+                got = wait(api, job, timeout=60)
+                assert got["status"] == "succeeded", got
     finally:
         api_proc.kill()
         api_proc.wait(10)

@@ -140,8 +140,10 @@ def state(conn: Redis, store: Store, plan: str) -> JobState:
     result = _from_job(plan, status, progress, job)
     if status == "failed":
         result.error = meta.get("error") or _worker_error(job)
-    elif status == "succeeded":  # finished, yet the document is gone from the store
-        result.status = "failed"
+    elif status == "succeeded":  # finished since the look in the store (the re-read above)?
+        if any(store.exists(key) for key in art.done_keys(plan)):
+            return _from_job(plan, "succeeded", {"stage": "done"}, job)
+        result.status = "failed"  # finished, yet the document is gone from the store
         result.error = error_record(NotFoundError("the job's result is missing from the store"))
     return result
 

@@ -344,16 +344,21 @@ def plate_and_chip():
     return part_from_arrays(mesh.vertices, mesh.faces)
 
 
-def test_an_ignored_region_forces_no_view_and_leaves_the_denominators():
-    from vpp_core.plan.pipeline import plan
-
-    part = plate_and_chip()
-    views = ExplicitCandidates(
+def two_views() -> ExplicitCandidates:
+    """Two cameras 400 mm above plate_and_chip looking down: over the chip and 300 mm aside."""
+    return ExplicitCandidates(
         viewpoints=[
             ViewpointIn(position=[0, 0, 400], gaze=[0, 0, -1]),
             ViewpointIn(position=[300, 0, 400], gaze=[0, 0, -1]),
         ]
     )
+
+
+def test_an_ignored_region_forces_no_view_and_leaves_the_denominators():
+    from vpp_core.plan.pipeline import plan
+
+    part = plate_and_chip()
+    views = two_views()
     base = dict(
         profile="paper",
         sensor=SMALL,
@@ -639,12 +644,7 @@ def test_a_partial_cover_never_leaves_out_a_region_with_its_own_target():
     from vpp_core.plan.pipeline import plan
 
     part = plate_and_chip()
-    views = ExplicitCandidates(
-        viewpoints=[
-            ViewpointIn(position=[0, 0, 400], gaze=[0, 0, -1]),
-            ViewpointIn(position=[300, 0, 400], gaze=[0, 0, -1]),
-        ]
-    )
+    views = two_views()
     base = dict(
         profile="paper",
         sensor=SMALL,

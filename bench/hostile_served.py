@@ -4,7 +4,8 @@ A uvicorn child process serves `service.app:create_app` with default settings on
 VPP_REDIS_URL and a temporary store. Each case sends its request(s) from threads while another
 thread asks `/livez` every 20 ms; per case: status, media type and size of the answer, seconds,
 the slowest `/livez` answer meanwhile, the server's peak RSS growth (VmHWM, reset before each
-case through /proc/<pid>/clear_refs) and its RSS 1 s after the case. Big bodies are streamed
+case through /proc/<pid>/clear_refs), its RSS 1 s after the case and the largest peak RSS of a
+child process of the server meanwhile (an upload parsed apart). Big bodies are streamed
 from generators with a Content-Length, so the client holds none of them.
 """
 
@@ -67,11 +68,26 @@ def reset_peak(pid: int) -> None:
         fh.write("5")
 
 
-class LivezWatch:
-    """Asks /livez every 20 ms in a thread; `worst` is the slowest answer (s)."""
+def children(pid: int) -> list[int]:
+    """The child processes of `pid`, started by any of its threads (Linux /proc)."""
+    found = []
+    for task in os.listdir(f"/proc/{pid}/task"):
+        try:
+            with open(f"/proc/{pid}/task/{task}/children") as fh:
+                found += [int(c) for c in fh.read().split()]
+        except OSError:
+            pass
+    return found
 
-    def __init__(self, base: str) -> None:
+
+class LivezWatch:
+    """Asks /livez every 20 ms in a thread; `worst` is the slowest answer (s), `child_mib`
+    the largest peak RSS (VmHWM) seen of any child process of `pid` meanwhile (an upload's
+    parsing child, service/parsing.py), read as often."""
+
+    def __init__(self, base: str, pid: int | None = None) -> None:
         self.base, self.worst, self.done = base, 0.0, threading.Event()
+        self.pid, self.child_mib = pid, 0.0
         self.thread = threading.Thread(target=self._run, daemon=True)
 
     def _run(self) -> None:
@@ -80,7 +96,16 @@ class LivezWatch:
                 start = time.perf_counter()
                 client.get(self.base + "/livez")
                 self.worst = max(self.worst, time.perf_counter() - start)
+                self._children()
                 time.sleep(0.02)
+
+    def _children(self) -> None:
+        """Update `child_mib` from the children's VmHWM (ones gone meanwhile are skipped)."""
+        for child in children(self.pid) if self.pid else []:
+            try:
+                self.child_mib = max(self.child_mib, rss_mib(child, "VmHWM"))
+            except (OSError, StopIteration):
+                pass
 
     def __enter__(self) -> LivezWatch:
         self.thread.start()
@@ -313,15 +338,15 @@ def run_served(only: str | None, meshes: bool = False) -> None:
         if meshes or (only and "triangles" in only):
             table |= mesh_cases(write_meshes(store))
         print(f"server RSS at start: {rss_mib(proc.pid):.0f} MiB")
-        print("| case | answer | s | slowest /livez s | peak RSS growth MiB | RSS after MiB |")
-        print("|---|---|---|---|---|---|")
+        head = "| case | answer | s | slowest /livez s | peak RSS growth MiB | RSS after MiB |"
+        print(head + " child peak RSS MiB |\n" + "|---" * 7 + "|")
         for name, call in table.items():
             if only and only.lower() not in name.lower():
                 continue
             time.sleep(1)
             before = rss_mib(proc.pid)
             reset_peak(proc.pid)
-            with LivezWatch(base) as watch:
+            with LivezWatch(base, proc.pid) as watch:
                 start = time.perf_counter()
                 answer = describe(call(base))
                 took = time.perf_counter() - start
@@ -329,7 +354,8 @@ def run_served(only: str | None, meshes: bool = False) -> None:
             time.sleep(1)
             after = rss_mib(proc.pid)
             cells = [name, answer, f"{took:.2f}", f"{watch.worst:.3f}", f"{grown:.0f}"]
-            print("| " + " | ".join([*cells, f"{after:.0f}"]) + " |", flush=True)
+            child = f"{watch.child_mib:.0f}" if watch.child_mib else "-"
+            print("| " + " | ".join([*cells, f"{after:.0f}", child]) + " |", flush=True)
     finally:
         proc.terminate()
         proc.wait()

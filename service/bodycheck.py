@@ -9,12 +9,15 @@ during which no other thread, the event loop's included, ran. So a body is check
 2. parsed (json.loads; NaN and Infinity, which JSON has not, are refused; a body that is not
    JSON is left to the route, which answers it as ever);
 3. "long" arrays (over SHORT items: explicit viewpoints; fixed-size vectors never are) are cut
-   to their first k items and the cut body validated, k starting at as many items as hold
-   about STEP_VALUES values and doubling, until an error is found or nothing is cut. Items are
-   validated alike wherever they stand, so errors of a cut body are errors of the whole one,
-   at the same locations; the first step lists at most about STEP_VALUES errors, a later one
-   at most as many as the valid prefix before it has items' values, and all steps together
-   cost at most about twice one whole validation.
+   to their first k items and the cut body validated, k growing by `window` items per step
+   (as many as hold about STEP_VALUES values, at most MAX_NEW_ITEMS) until an error is found
+   or nothing is cut. Items are validated alike wherever they stand, so errors of a cut body
+   are errors of the whole one, at the same locations (but not all of them when the step
+   did not reach the end: the answer's `error_count` then counts those found). A step
+   validates at most `window` items that were not valid in the step before, so it builds at
+   most that many items' errors (pydantic's costly part: 4 000 `{}` items took 44 ms, 256
+   take 3 ms) and the valid prefix before them (1.7 µs per viewpoint); a valid body of
+   5 000 viewpoints takes 20 steps of at most 9 ms each.
 
 The route validates a body that passes once more, whole (milliseconds: it is valid).
 """
@@ -23,7 +26,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable
-from typing import Any
+from typing import Any, NamedTuple
 
 from vpp_core.errors import LimitError
 
@@ -32,7 +35,10 @@ MAX_KEYS = 64
 SHORT = 64
 """Arrays of at most this many items are validated whole."""
 STEP_VALUES = 4_000
-"""New values validated per step (about as many errors at most: some 30 ms here)."""
+"""New values validated per step at most."""
+MAX_NEW_ITEMS = 256
+"""New items of a long array validated per step at most (an invalid item costs more than its
+values: `{}` as a viewpoint is 1 value and 2 errors)."""
 Validate = Callable[[Any], list[dict[str, Any]]]
 """Validation of a parsed body: its errors (none when valid)."""
 
@@ -61,21 +67,29 @@ def parse(body: bytes) -> Any:
     return json.loads(body, parse_constant=refuse)
 
 
-def stepwise_errors(value: Any, validate: Validate) -> list[dict[str, Any]]:
+class Checked(NamedTuple):
+    """What the steps found: the errors of the first failing step (none: valid), and whether
+    that step validated the whole body (so that `errors` are all its errors)."""
+
+    errors: list[dict[str, Any]]
+    whole: bool
+
+
+def stepwise_errors(value: Any, validate: Validate) -> Checked:
     """The errors of the first failing step (see module), or none when `value` is valid."""
     long: list[list[Any]] = []
     _walk(value, long)
     if not long:
-        return validate(value)
+        return Checked(validate(value), True)
     per_item = max(_size(item) for array in long for item in array)
-    step = max(1, STEP_VALUES // per_item)
+    window = max(1, min(MAX_NEW_ITEMS, STEP_VALUES // per_item))
     longest = max(len(a) for a in long)
-    keep = step
+    keep = window
     while True:
         errors = validate(_cut(value, keep))
         if errors or keep >= longest:
-            return errors
-        keep *= 2
+            return Checked(errors, keep >= longest)
+        keep += window
 
 
 def _walk(value: Any, long: list[list[Any]]) -> None:

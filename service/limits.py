@@ -234,14 +234,16 @@ def _check_json(request: Request, body: bytes, field: Any, max_values: int) -> R
     try:
         bodycheck.count_values(body, max_values)
         value = bodycheck.parse(body)
-        errors = bodycheck.stepwise_errors(value, lambda v: field.validate(v, loc=("body",))[1])
+        errors, whole = bodycheck.stepwise_errors(
+            value, lambda v: field.validate(v, loc=("body",))[1]
+        )
     except LimitError as exc:
         return problems.error_response(request, exc)
     except bodycheck.NotJsonConstant as exc:
-        errors = [{"loc": ("body",), "msg": str(exc), "type": "json_invalid"}]
+        errors, whole = [{"loc": ("body",), "msg": str(exc), "type": "json_invalid"}], True
     except (ValueError, RecursionError):
         return None
-    return problems.validation_response(request, errors) if errors else None
+    return problems.validation_response(request, errors, whole) if errors else None
 
 
 def _malloc_trim() -> Callable[[int], int] | None:

@@ -6,7 +6,7 @@ import json
 import re
 from collections.abc import Sequence
 from dataclasses import asdict
-from pathlib import PurePath
+from pathlib import Path, PurePath
 
 from redis import Redis
 from rq import Queue
@@ -50,7 +50,7 @@ def content_id(value: str, what: str) -> str:
 def upload_mesh(
     store: Store,
     settings: Settings,
-    data: bytes,
+    data: bytes | Path,
     filename: str | None,
     fmt: str | None,
     units: str,
@@ -58,15 +58,14 @@ def upload_mesh(
     remesh_mm: float | None = None,
     labels: bytes | None = None,
 ) -> MeshSummary:
-    """Check and store a mesh (remeshed at `remesh_mm` and its faces split to
-    `max_face_area_mm2`, each if given); the same geometry again gives the same id and stores
-    nothing."""
+    """Check and store a mesh, given as bytes or (a big one, parsed in a child process) the
+    path of a file (remeshed at `remesh_mm` and its faces split to `max_face_area_mm2`, each
+    if given); the same geometry again gives the same id and stores nothing."""
     file_type = fmt or PurePath(filename or "").suffix.lstrip(".") or "stl"
     part = parse_upload(
         data,
         file_type,
         units,
-        child=len(data) >= settings.parse_child_bytes,
         remesh_mm=remesh_mm,
         max_face_area_mm2=max_face_area_mm2,
         max_faces=settings.max_faces,

@@ -94,9 +94,13 @@ async def _validation(request: Request, exc: Exception) -> JSONResponse:
     return validation_response(request, exc.errors())
 
 
-def validation_response(request: Request, errors: Sequence[dict[str, Any]]) -> JSONResponse:
+def validation_response(
+    request: Request, errors: Sequence[dict[str, Any]], whole: bool = True
+) -> JSONResponse:
     """The 422 answer to validation errors: the first MAX_ERRORS of them (each loc part and
-    message cut to MAX_TEXT characters) and `error_count`, however many there are."""
+    message cut to MAX_TEXT characters), `error_count`, however many there are, and
+    `error_count_exact`: false when validation stopped before the body's end (a long list is
+    checked in steps, `service.bodycheck`), so that more errors may follow those counted."""
     shown = [
         {"loc": [_cut(p) for p in e["loc"]], "msg": _cut(e["msg"]), "type": e["type"]}
         for e in errors[:MAX_ERRORS]
@@ -104,8 +108,9 @@ def validation_response(request: Request, errors: Sequence[dict[str, Any]]) -> J
     first = shown[0] if shown else {"loc": [], "msg": "invalid request"}
     detail = f"{'.'.join(str(p) for p in first['loc'])}: {first['msg']}"
     if len(errors) > 1:
-        detail += f" (and {len(errors) - 1} more errors)"
-    extra = {"errors": shown, "error_count": len(errors)}
+        more = "more errors" if whole else "more errors in the items checked, maybe more after"
+        detail += f" (and {len(errors) - 1} {more})"
+    extra = {"errors": shown, "error_count": len(errors), "error_count_exact": whole}
     return problem(request, 422, "Invalid request", detail, **extra)
 
 

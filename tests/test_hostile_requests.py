@@ -13,10 +13,13 @@ import time
 from typing import Any
 
 import httpx
+import numpy as np
+import pydantic
 import pytest
 
-from service import limits
+from service import bodycheck, limits
 from service.app import create_app
+from service.models import PlanSubmit
 from tests.conftest import serving
 from tests.test_hostile import FAST, JSON, refused, timed, upload, viewpoints_body
 from vpp_core.samples import sample_stl
@@ -49,12 +52,52 @@ def test_900000_invalid_viewpoints_are_refused_by_count(api: Any, mesh_id: str) 
 
 
 def test_validation_errors_are_capped_with_their_count(api: Any, mesh_id: str) -> None:
-    n = 3000  # under the value count: validated, 2 errors ("missing") per item at least
+    n = 3000  # under the value count: validated in steps, 2 errors ("missing") per item at least
     body = b'{"mesh_id":"%s","candidates":[%s]}' % (mesh_id.encode(), b",".join([b"{}"] * n))
     r = api.post("/v1/plans", content=body, headers=JSON)
     problem = refused(r, 422)
-    assert len(problem["errors"]) == 20 and problem["error_count"] >= n
+    assert len(problem["errors"]) == 20 and problem["error_count"] >= 2 * bodycheck.MAX_NEW_ITEMS
+    assert problem["error_count_exact"] is False and "maybe more after" in problem["detail"]
     assert len(r.content) < 10_000
+
+
+def test_a_short_invalid_body_gets_its_exact_error_count(api: Any, mesh_id: str) -> None:
+    items = [{}, {"position": [0, 0, 1]}, {"position": [0, 0, 1], "gaze": [0, 0]}] * 20
+    value = {"mesh_id": mesh_id, "candidates": items}
+    problem = refused(api.post("/v1/plans", json=value), 422)
+    whole = pydantic.TypeAdapter(PlanSubmit).validate_python
+    with pytest.raises(pydantic.ValidationError) as direct:
+        whole(value)
+    assert problem["error_count_exact"] is True
+    assert problem["error_count"] == direct.value.error_count()
+
+
+def test_steps_find_the_whole_bodys_first_errors_in_bounded_steps() -> None:
+    """Each step validates at most MAX_NEW_ITEMS items beyond the valid ones before it, and
+    the errors found are the whole body's, at the same locations."""
+    view = {"position": [0, 0, 500], "gaze": [0, 0, -1]}
+    items = [view] * 1000 + [{}] * 3 + [view] * 500
+    value = {"mesh_id": ZERO, "candidates": items}
+    whole = pydantic.TypeAdapter(PlanSubmit).validate_python
+    seen: list[int] = []
+
+    def validate(v: Any) -> list[dict[str, Any]]:
+        seen.append(len(v["candidates"]))
+        try:
+            whole(v)
+        except pydantic.ValidationError as exc:
+            return [dict(e) for e in exc.errors()]
+        return []
+
+    errors, complete = bodycheck.stepwise_errors(value, validate)
+    assert not complete and max(np.diff([0, *seen])) <= bodycheck.MAX_NEW_ITEMS
+    with pytest.raises(pydantic.ValidationError) as direct:
+        whole(value)
+    assert [e["loc"] for e in errors] == [e["loc"] for e in direct.value.errors()]
+    assert bodycheck.stepwise_errors({"mesh_id": ZERO, "candidates": [view] * 700}, validate) == (
+        [],
+        True,
+    )
 
 
 def livez_while(base: str, request: Any) -> tuple[httpx.Response, float]:
@@ -75,12 +118,13 @@ def livez_while(base: str, request: Any) -> tuple[httpx.Response, float]:
 
 
 def test_livez_answers_while_a_big_body_is_validated(svc_env: dict[str, str]) -> None:
-    body = b'{"mesh_id":"%s","candidates":[%s]}' % (ZERO.encode(), b",".join([b"{}"] * 16_000))
+    """40 000 `{}` items (under the value count) take 0.6 s of pydantic in one piece here."""
+    body = b'{"mesh_id":"%s","candidates":[%s]}' % (ZERO.encode(), b",".join([b"{}"] * 40_000))
     with serving(create_app(Settings())) as base:
         post = lambda: httpx.post(base + "/v1/plans", content=body, headers=JSON, timeout=60)  # noqa: E731
         answer, worst = livez_while(base, post)
     refused(answer, 422)
-    assert worst < 0.5, f"/livez took {worst:.2f} s while the body was validated"
+    assert worst < 0.3, f"/livez took {worst:.2f} s while the body was validated"
 
 
 @pytest.mark.parametrize("path", ["/v1/plans", "/v1/studies"])
@@ -211,3 +255,22 @@ def test_a_big_upload_is_parsed_in_a_child_process(
     assert answer.json()["id"] == want and not in_api
     assert small.status_code == 500 and calls == [len(sample_stl())]  # small: in-process
     assert worst < 2.0, f"/livez took {worst:.2f} s while a child parsed the upload"
+
+
+def test_a_full_collection_skips_what_was_alive_at_startup(svc_env: dict[str, str]) -> None:
+    """The served app freezes the heap it starts with: a full cyclic collection (which runs in
+    whichever thread allocates, the event loop's too) no longer walks it, and is at least
+    three times faster than before the start (here: 100 ms against under 1 ms)."""
+    import gc
+
+    def collect_s() -> float:
+        start = time.perf_counter()
+        gc.collect()
+        return time.perf_counter() - start
+
+    before = min(collect_s() for _ in range(2))
+    with serving(create_app(Settings())):
+        during = min(collect_s() for _ in range(2))
+    after = collect_s()
+    assert during < before / 3, (before, during)
+    assert after > during, "the heap is given back to the collector when serving ends"

@@ -3,7 +3,12 @@
 from __future__ import annotations
 
 import os
+import shutil
+import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
 from functools import partial
+from pathlib import Path
 from typing import Annotated
 
 from fastapi import APIRouter, File, Form, Header, Response, UploadFile
@@ -13,6 +18,9 @@ from service.deps import SettingsDep, StoreDep
 from service.models import LabelsSummary, MeshSummary, Problem
 from service.routers.plans import named_forever
 from vpp_core.errors import TooLargeError
+
+COPY_CHUNK = 1 << 20
+"""Bytes per read and write when a big upload is copied for its parsing child."""
 
 router = APIRouter(prefix="/v1/meshes", tags=["meshes"])
 ERRORS = {c: {"model": Problem, "content": {"application/problem+json": {}}} for c in (413, 422)}
@@ -66,19 +74,19 @@ def upload_mesh(
     ] = None,
 ) -> MeshSummary:
     """Upload a mesh; the same geometry again gives the same id and stores nothing new."""
-    data = read_spooled(file, settings.max_upload_bytes)
     label_bytes = _label_bytes(labels, settings.max_upload_bytes)
-    summary = planning.upload_mesh(
-        store,
-        settings,
-        data,
-        file.filename,
-        format,
-        units,
-        max_face_area_mm2,
-        remesh_mm,
-        label_bytes,
-    )
+    with upload_source(file, settings.max_upload_bytes, settings.parse_child_bytes) as data:
+        summary = planning.upload_mesh(
+            store,
+            settings,
+            data,
+            file.filename,
+            format,
+            units,
+            max_face_area_mm2,
+            remesh_mm,
+            label_bytes,
+        )
     response.headers["Location"] = f"/v1/meshes/{summary.id}"
     response.headers["ETag"] = f'"{summary.id}"'
     return summary
@@ -98,13 +106,35 @@ def _label_bytes(labels: UploadFile | str | None, max_bytes: int) -> bytes | Non
 def read_spooled(upload: UploadFile, max_bytes: int) -> bytes:
     """The uploaded file's bytes, read in one go from the temporary file it was streamed to (one
     buffer of its size); TooLargeError when it is over `max_bytes`, unread."""
+    size = _spooled_size(upload, max_bytes)
+    return upload.file.read(size)
+
+
+@contextmanager
+def upload_source(upload: UploadFile, max_bytes: int, child_bytes: int) -> Iterator[bytes | Path]:
+    """The uploaded file's bytes (`read_spooled`), or from `child_bytes` on the path of a named
+    copy of it, deleted afterwards, for a child process to parse (service/parsing.py): the
+    API then never holds the file (the copy goes in COPY_CHUNK pieces, each with the GIL
+    released while it is read and written)."""
+    size = _spooled_size(upload, max_bytes)
+    if size < child_bytes:
+        yield upload.file.read(size)
+        return
+    with tempfile.NamedTemporaryFile(prefix="vpp-upload-") as copy:
+        shutil.copyfileobj(upload.file, copy, COPY_CHUNK)
+        copy.flush()
+        yield Path(copy.name)
+
+
+def _spooled_size(upload: UploadFile, max_bytes: int) -> int:
+    """The spooled file's size, rewound to its start; TooLargeError over `max_bytes`."""
     spool = upload.file
     spool.seek(0, os.SEEK_END)
     size = spool.tell()
     if size > max_bytes:
         raise TooLargeError(f"upload of {size} bytes exceeds the limit of {max_bytes} bytes")
     spool.seek(0)
-    return spool.read(size)
+    return size
 
 
 @router.get("/{mesh_id}", response_model=MeshSummary, responses={404: {"model": Problem}})

@@ -193,8 +193,8 @@ def _plan_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--rows",
         choices=["patches", "faces"],
-        help="cover rows: patches of surface about 5 r̄ across (default profile) or faces "
-        "(SPEC §3, paper profile)",
+        help="cover rows: connected patches of surface about 32 r̄ across (default profile) "
+        "or faces (SPEC §3, paper profile)",
     )
     p.add_argument(
         "--tilt",

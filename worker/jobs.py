@@ -18,6 +18,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from datetime import UTC, datetime
 from functools import partial
 from typing import Any
 
@@ -51,6 +52,10 @@ POLL_S = 0.25
 """Seconds between two looks at the chunks other workers run."""
 WATCH_S = 1.0
 """While the plan job traces a chunk itself: seconds between two looks at the others."""
+STARTED_META = "started_at"
+"""The job meta field holding when the job's body started (ISO 8601, UTC): RQ writes its own
+`started_at` twice, when the work horse takes the job and again, a few ms later, when it
+finishes, so a state read in between (the document already stored) gave another start."""
 FAILED = {JobStatus.FAILED, JobStatus.STOPPED, JobStatus.CANCELED}
 ADOPT = {JobStatus.QUEUED, JobStatus.STARTED, JobStatus.FINISHED}
 """Chunk job states a retried plan job adopts instead of enqueueing the chunk again."""
@@ -100,6 +105,7 @@ def plan_job(plan: str) -> dict[str, Any]:
 def run_job(body: Callable[[Context, str], dict[str, Any]], job_id: str) -> dict[str, Any]:
     """Run a job body in the current RQ job's context; its error recorded for clients."""
     ctx = Context.current()
+    ctx.meta.update(force=True, **{STARTED_META: datetime.now(UTC).isoformat()})
     try:
         return body(ctx, job_id)
     except BaseException as exc:

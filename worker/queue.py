@@ -30,7 +30,7 @@ from vpp_core.errors import NotFoundError
 from worker import artifacts as art
 from worker import jobhooks
 from worker.faults import delete_job, failure_reason
-from worker.jobs import error_record, plan_job
+from worker.jobs import STARTED_META, error_record, plan_job
 from worker.settings import Settings
 from worker.store import Store
 
@@ -195,9 +195,15 @@ def _from_job(plan: str, status: Status, progress: dict[str, Any], job: Job | No
         progress=progress,
         chunks=list(job.meta.get("chunks", [])),
         created_at=job.created_at,
-        started_at=job.started_at,
+        started_at=_started(job),
         ended_at=job.ended_at,
     )
+
+
+def _started(job: Job) -> datetime | None:
+    """When the job's body started (its meta, written once per run), else RQ's own time."""
+    started = job.meta.get(STARTED_META)
+    return datetime.fromisoformat(started) if started else job.started_at
 
 
 def _worker_error(job: Job) -> dict[str, str]:

@@ -66,9 +66,10 @@ class Target(_Strict):
 
     rows: Literal["patches", "faces"] | None = Field(
         None,
-        description="what a row of the cover is: `patches` (faces grouped into pieces of "
-        "surface about 5 r̄ across, R and area summed: coverage of sampled area, whatever the "
-        "tessellation) or `faces` (one row per face, SPEC §3); default: the profile's",
+        description="what a row of the cover is: `patches` (faces grouped into connected "
+        "pieces of surface about 32 r̄ across, 5 r̄ in regions with their own target; R and "
+        "area summed: coverage of sampled area, whatever the tessellation) or `faces` (one "
+        "row per face, SPEC §3); default: the profile's",
     )
 
 

@@ -130,7 +130,8 @@ def _plan(ctx: Context, plan: str) -> dict[str, Any]:
     trace_id = art.trace_id(mesh_id, request)
     timings = Timings()
     progress = stage_progress(ctx.meta)
-    warm(request.backend, progress)  # stage `compiling` while numba compiles (fresh install)
+    # stage `compiling` while numba compiles (fresh install); it counts in the plan's budget
+    timings.compiling = round(warm(request.backend, progress), 4)
     views, info, trace, reused = _trace(ctx, part, request, trace_id, timings, cell)
     progress("adaptive", 0, 1)
     start = time.perf_counter()

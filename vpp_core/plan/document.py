@@ -143,7 +143,8 @@ class SolverSettings(_Strict):
         le=86_400,
         description="wall seconds for the whole plan after loading the mesh: candidates, "
         "tracing, the adaptive rounds and the covers; the final cover gets what the stages "
-        "before it left (at least 15 %), less 8 % kept for the tour, metrics and diagnostics",
+        "before it left (at least 15 %), less 12 % kept for the tour, metrics, diagnostics "
+        "and the document",
     )
     mip_rel_gap: float = Field(0.0, ge=0, lt=1)
 
@@ -382,6 +383,8 @@ class Timings(BaseModel):
 
     load: float = 0.0
     """Before planning: reading the mesh (the CLI: since the command started, imports too)."""
+    compiling: float = 0.0
+    """numba compiling the trace kernels, on a fresh install only (then cached)."""
     candidates: float = 0.0
     trace: float = 0.0
     adaptive: float = 0.0

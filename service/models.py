@@ -153,6 +153,12 @@ class Problem(BaseModel):
     detail: str | None = None
     instance: str | None = None
     errors: list[dict[str, Any]] | None = None
+    """422: the first validation errors (at most 20), each {loc, msg, type}."""
+    error_count: int | None = None
+    """422: how many validation errors were found."""
+    error_count_exact: bool | None = None
+    """422: false when validation stopped at the first items in error, before the body's end
+    (a long list is checked in steps): `error_count` then counts the items checked."""
 
 
 class RelatedPlan(BaseModel):

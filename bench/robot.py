@@ -20,6 +20,7 @@ import argparse
 import json
 import os
 import time
+from collections.abc import Callable, Iterable
 from typing import Any
 
 import numpy as np
@@ -51,18 +52,22 @@ def accepted(robot: Robot, q: np.ndarray | None, target: np.ndarray) -> tuple[bo
     return bool(dp[0] <= kin.CHECK_MM and da[0] <= kin.CHECK_DEG), float(dp[0])
 
 
-def bench_rtb(robot: Robot, poses: np.ndarray, starts: np.ndarray) -> dict[str, Any]:
-    """roboticstoolbox ik_LM: time per solve, success from 1 and from len(starts) starts."""
-    ets = kin.ets_of(robot)
+Attempt = Callable[[Any, np.ndarray], tuple[bool, float]]
+"""(a prepared target, a start joint vector) -> (accepted, position error mm)."""
+
+
+def tally(
+    library: str, targets: Iterable[Any], n: int, starts: np.ndarray, attempt: Attempt
+) -> dict[str, Any]:
+    """Each of the `n` targets (prepared as the loop reaches them, inside the timing) tried
+    from each start in turn until `attempt` accepts: time per solve, success from 1 and from
+    len(starts) starts, worst accepted error."""
     one, many, errors, solves = 0, 0, [], 0
     t0 = time.perf_counter()
-    for target in poses:
-        metres = target.copy()
-        metres[:3, 3] /= 1000
+    for target in targets:
         for k, start in enumerate(starts):
             solves += 1
-            q = kin.solve(ets, metres, start)
-            ok, err = accepted(robot, q, target)
+            ok, err = attempt(target, start)
             if ok:
                 one += k == 0
                 many += 1
@@ -70,10 +75,27 @@ def bench_rtb(robot: Robot, poses: np.ndarray, starts: np.ndarray) -> dict[str, 
                 break
     dt = time.perf_counter() - t0
     return {
-        "library": "roboticstoolbox-python ik_LM", "us_per_solve": 1e6 * dt / solves,
-        "ok_1_start": one / len(poses), f"ok_{len(starts)}_starts": many / len(poses),
+        "library": library, "us_per_solve": 1e6 * dt / solves,
+        "ok_1_start": one / n, f"ok_{len(starts)}_starts": many / n,
         "max_err_mm": max(errors, default=float("nan")),
     }  # fmt: skip
+
+
+def bench_rtb(robot: Robot, poses: np.ndarray, starts: np.ndarray) -> dict[str, Any]:
+    """roboticstoolbox ik_LM: time per solve, success from 1 and from len(starts) starts."""
+    ets = kin.ets_of(robot)
+
+    def prepare(target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        metres = target.copy()
+        metres[:3, 3] /= 1000
+        return target, metres
+
+    def attempt(prepared: tuple[np.ndarray, np.ndarray], start: np.ndarray) -> tuple[bool, float]:
+        target, metres = prepared
+        return accepted(robot, kin.solve(ets, metres, start), target)
+
+    prepared = (prepare(target) for target in poses)
+    return tally("roboticstoolbox-python ik_LM", prepared, len(poses), starts, attempt)
 
 
 def bench_ikpy(name: str, robot: Robot, q_true: np.ndarray, starts: np.ndarray) -> dict[str, Any]:
@@ -92,34 +114,26 @@ def bench_ikpy(name: str, robot: Robot, q_true: np.ndarray, starts: np.ndarray) 
     mask = np.array([link.joint_type != "fixed" for link in chain.links])
     chain.active_links_mask = mask
     active = np.flatnonzero(mask)[: robot.n]
-    one, many, errors, solves = 0, 0, [], 0
-    t0 = time.perf_counter()
-    for q in q_true:
-        full = np.zeros(len(chain.links))
-        full[active] = q
-        target = chain.forward_kinematics(full)
-        for k, start in enumerate(starts):
-            solves += 1
-            init = np.zeros(len(chain.links))
-            init[active] = start
-            got = chain.forward_kinematics(
-                chain.inverse_kinematics_frame(
-                    target, initial_position=init, orientation_mode="all"
-                )
+
+    def full(q: np.ndarray) -> np.ndarray:
+        """`q` on the chain's active links, zeros elsewhere."""
+        vector = np.zeros(len(chain.links))
+        vector[active] = q
+        return vector
+
+    def attempt(target: np.ndarray, start: np.ndarray) -> tuple[bool, float]:
+        got = chain.forward_kinematics(
+            chain.inverse_kinematics_frame(
+                target, initial_position=full(start), orientation_mode="all"
             )
-            dp = 1000 * np.linalg.norm(got[:3, 3] - target[:3, 3])
-            cos = np.clip((np.trace(got[:3, :3].T @ target[:3, :3]) - 1) / 2, -1, 1)
-            if dp <= kin.CHECK_MM and np.degrees(np.arccos(cos)) <= kin.CHECK_DEG:
-                one += k == 0
-                many += 1
-                errors.append(dp)
-                break
-    dt = time.perf_counter() - t0
-    return {
-        "library": "ikpy inverse_kinematics_frame", "us_per_solve": 1e6 * dt / solves,
-        "ok_1_start": one / len(q_true), f"ok_{len(starts)}_starts": many / len(q_true),
-        "max_err_mm": max(errors, default=float("nan")),
-    }  # fmt: skip
+        )
+        dp = 1000 * np.linalg.norm(got[:3, 3] - target[:3, 3])
+        cos = np.clip((np.trace(got[:3, :3].T @ target[:3, :3]) - 1) / 2, -1, 1)
+        ok = dp <= kin.CHECK_MM and np.degrees(np.arccos(cos)) <= kin.CHECK_DEG
+        return bool(ok), float(dp)
+
+    targets = (chain.forward_kinematics(full(q)) for q in q_true)
+    return tally("ikpy inverse_kinematics_frame", targets, len(q_true), starts, attempt)
 
 
 def bushing_scene() -> tuple[trimesh.Trimesh, Scene]:

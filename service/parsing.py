@@ -7,9 +7,9 @@ therefore parsed in a child process started for them alone (spawned: the API has
 is given the path of a file holding the upload and reads it itself (handing it 200 MB of bytes
 meant pickling them in the API process, holding the GIL: a quarter of the API's GIL time, and
 `/livez` 0.6 s, during four such uploads), and only the parsed part (arrays) comes back; the
-child's peak memory goes with it. The child runs
-at a lower priority (CHILD_NICE), so that on a machine with fewer cores than parses under way
-the API's event loop still gets the CPU when a request comes.
+child's peak memory goes with it. The child runs at a lower priority (CHILD_NICE), so that on
+a machine with fewer cores than parses under way the API's event loop still gets the CPU when
+a request comes.
 """
 
 from __future__ import annotations

@@ -395,7 +395,7 @@ def bushing_labels() -> np.ndarray:
 
 @pytest.mark.slow
 def test_service_round_trip_with_uploaded_labels(api, start_workers):
-    from tests.test_service_jobs import same_plan, wait
+    from tests.test_service_jobs import same_plan, served_plan, submit
     from vpp_core.mesh.labels import FaceLabels
     from vpp_core.mesh.part import with_labels
     from vpp_core.plan.pipeline import plan
@@ -443,12 +443,9 @@ def test_service_round_trip_with_uploaded_labels(api, start_workers):
         r = api.post("/v1/plans", json={**body, **change})
         assert r.status_code == 422, (change, r.text)
         assert r.headers["content-type"] == "application/problem+json" and message in r.text
-    r = api.post("/v1/plans", json=body)
-    assert r.status_code == 202, r.text
+    job = submit(api, body)
     start_workers(1)
-    done = wait(api, r.json()["id"])
-    assert done["status"] == "succeeded", done
-    served = PlanDocument.model_validate_json(api.get(done["result_url"]).content)
+    served = served_plan(api, job)
     request = PlanRequest.model_validate({k: v for k, v in body.items() if k != "mesh_id"})
     part = with_labels(load_mesh(sample_stl(), "stl"), FaceLabels(labels))
     local = plan(part, request, threads=1)

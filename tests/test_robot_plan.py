@@ -193,7 +193,7 @@ def test_cli_setup_with_an_urdf_file(tmp_path: Path, capsys: pytest.CaptureFixtu
 def test_service_robot_plan_and_an_explicit_viewpoint_it_refuses(
     api: Any, start_workers: Any
 ) -> None:
-    from tests.test_service_jobs import same_plan, wait
+    from tests.test_service_jobs import same_plan, served_plan, submit
     from vpp_core.mesh.part import load_mesh
 
     data = trimesh.Trimesh(bushing().vertices, bushing().faces).export(file_type="stl")
@@ -207,12 +207,9 @@ def test_service_robot_plan_and_an_explicit_viewpoint_it_refuses(
     r = api.post("/v1/plans", json={**body, "candidates": far})
     assert r.status_code == 422 and r.headers["content-type"].startswith("application/problem+json")
     assert "viewpoint 1" in r.json()["detail"] and "no_ik" in r.json()["detail"]
-    r = api.post("/v1/plans", json=body)
-    assert r.status_code == 202, r.text
+    job = submit(api, body)
     start_workers(1)
-    done = wait(api, r.json()["id"])
-    assert done["status"] == "succeeded", done
-    served = PlanDocument.model_validate_json(api.get(done["result_url"]).content)
+    served = served_plan(api, job)
     local = plan(load_mesh(data, "stl"), request(ur5_setup()), threads=1)
     assert served.robot is not None and local.robot is not None
     served.robot.seconds = local.robot.seconds = 0.0

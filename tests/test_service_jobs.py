@@ -40,6 +40,13 @@ def wait(api, job: str, until=("succeeded", "failed", "canceled"), timeout: floa
     raise AssertionError(f"job {job} still {body['status']} after {timeout} s: {body}")
 
 
+def served_plan(api, job: str) -> PlanDocument:
+    """The plan job's document as served, once the job has succeeded (it must)."""
+    done = wait(api, job)
+    assert done["status"] == "succeeded", done
+    return PlanDocument.model_validate_json(api.get(done["result_url"]).content)
+
+
 def same_plan(a: PlanDocument, b: PlanDocument) -> None:
     """Everything but timings and ray rates is identical."""
     drop = {"timings_s": True, "rays": {"cast_per_s", "trace_s", "reused"}, "solver": {"time_s"}}

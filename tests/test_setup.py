@@ -471,15 +471,11 @@ def test_service_round_trip_with_a_fixture_mesh_id(api: Any, start_workers: Any)
     r = api.post("/v1/plans", json=under)
     assert r.status_code == 422 and "viewpoint 0" in r.json()["detail"]
     assert "floor" in r.json()["detail"]
-    r = api.post("/v1/plans", json=body)
-    assert r.status_code == 202, r.text
-    job = r.json()["id"]
-    start_workers(1)
-    from tests.test_service_jobs import same_plan, wait
+    from tests.test_service_jobs import same_plan, served_plan, submit
 
-    done = wait(api, job)
-    assert done["status"] == "succeeded", done
-    served = PlanDocument.model_validate_json(api.get(done["result_url"]).content)
+    job = submit(api, body)
+    start_workers(1)
+    served = served_plan(api, job)
     local_part = load_mesh(stl(plate), "stl")
     block_part = load_mesh(stl(block), "stl")
     req = PlanRequest.model_validate({k: v for k, v in body.items() if k != "mesh_id"})

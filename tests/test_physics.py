@@ -9,7 +9,7 @@ import pytest
 
 from tests.conftest import look_down, plate_part
 from vpp_core.camera.sensor import Sensor
-from vpp_core.cover.density import density_matrix
+from vpp_core.cover.density import Cameras, density_matrix
 from vpp_core.mesh.part import part_from_arrays
 from vpp_core.trace.raytrace import trace_counts
 
@@ -151,3 +151,15 @@ def test_culling_hull_contains_the_part():
     mesh.apply_translation([10, -300, 40])
     hull = Delaunay(_hull_points(mesh.vertices))
     assert (hull.find_simplex(mesh.vertices) >= 0).all()
+
+
+@pytest.mark.parametrize("tilt", [0.0, 50.0])
+def test_expected_ray_density_matches_the_traced_rays_per_area(tilt):
+    # a 20 mm plate seen 18.5° off-axis, flat or tilted: R / A against the pinhole
+    # density Cameras.ray_density gives at its centre, the patch rows' sampled share
+    part = plate_part(side=20.0, tilt_deg=tilt)
+    views = look_down((120.0, 60.0, 400.0))
+    traced = counts(part, PAPER, views).sum() / part.areas.sum()
+    normal = part.normals[:1]
+    expected = Cameras(views, PAPER).ray_density(np.zeros((1, 3)), normal, np.zeros(1, int))
+    assert traced == pytest.approx(expected[0], rel=0.02)

@@ -83,17 +83,43 @@ def brute_or_milp_optimum(a: np.ndarray) -> int:
     return int(round(res.fun))
 
 
-def s_matrix(r: np.ndarray, areas: np.ndarray, res: float, formulation: str) -> np.ndarray:
-    """SPEC §3 S (or V) written out densely from R; rows of unseen faces dropped."""
+def s_matrix(
+    r: np.ndarray, areas: np.ndarray, res: float, formulation: str, share: np.ndarray | None = None
+) -> np.ndarray:
+    """SPEC §3 S (or V) written out densely from R; rows of unseen faces dropped. With the
+    sampled `share` f (rows, N) of each row (patch rows): f min(1, r̄ sqrt(R / (f A)))."""
     v = (r > 0).astype(float)
     seen = v.any(axis=1)
     if formulation == "visibility":
         return v[seen]
+    f = np.ones_like(r) if share is None else np.where(r > 0, share, 1.0)
     with np.errstate(divide="ignore", invalid="ignore"):
-        delta = np.where(areas[:, None] > 0, np.sqrt(r / areas[:, None]), 0.0)
-    ok = delta.sum(axis=1) >= (1 / res) * (1 - 1e-9)
-    s = np.where(ok[:, None], np.minimum(1.0, delta * res), v)
+        delta = np.where(areas[:, None] > 0, np.sqrt(r / (f * areas[:, None])), 0.0)
+    s = f * np.minimum(1.0, delta * res)
+    ok = s.sum(axis=1) >= 1 - 1e-9
+    s = np.where(ok[:, None], s, v)
     return s[seen]
+
+
+def pinhole_share(
+    rp: np.ndarray, ap: np.ndarray, centres: np.ndarray, normals: np.ndarray, c2w, sensor
+) -> np.ndarray:
+    """(P, N) share of each patch its rays sample: min(1, R / (ρ A)), ρ the pixels per mm² of
+    the patch's plane at its centre, from projecting a small square on it into the image."""
+    out = np.ones_like(rp)
+    for j, m in enumerate(c2w):
+        for p in np.flatnonzero(rp[:, j] > 0):
+            t1 = np.cross(normals[p], [1.0, 0, 0] if abs(normals[p][0]) < 0.9 else [0, 1.0, 0])
+            t1 /= np.linalg.norm(t1)
+            t2 = np.cross(normals[p], t1)
+            h = 1e-3
+            corners = centres[p] + h * np.array([[0, 0, 0], t1, t2])
+            cam = (corners - m[:3, 3]) @ m[:3, :3]  # camera frame: x, y, z columns
+            px = np.column_stack([sensor.fx * cam[:, 0], sensor.fy * cam[:, 1]]) / cam[:, 2:]
+            e1, e2 = px[1] - px[0], px[2] - px[0]
+            rho = abs(e1[0] * e2[1] - e1[1] * e2[0]) / h**2
+            out[p, j] = min(1.0, rp[p, j] / (rho * ap[p]))
+    return out
 
 
 @pytest.fixture(scope="module")
@@ -175,6 +201,7 @@ def test_patch_claims_hold_independently(part, formulation):
     chosen = [v.id for v in doc.viewpoints]
     rp, ap = patch_rows(r, part.areas, part.counted, rows.patch_of_face)
     of = np.asarray(rows.patch_of_face)
+    share = pinhole_share(rp, ap, *patch_planes(part, of), [_c2w(c) for c in doc.candidates], SMALL)
     assert rows.count == len(ap) and np.allclose(ap[of[part.counted]] > 0, True)
     # every sampled patch is sampled by the selection; faces of unsampled patches are listed
     sampled = rp.any(axis=1)
@@ -184,8 +211,20 @@ def test_patch_claims_hold_independently(part, formulation):
     assert set(doc.uncoverable.ids) == set(np.flatnonzero(part.counted & ~r.any(axis=1)))
     # "optimal" is optimal on the patch rows
     assert doc.solver.status == "optimal"
-    optimum = brute_or_milp_optimum(s_matrix(rp, ap, res, formulation))
+    optimum = brute_or_milp_optimum(s_matrix(rp, ap, res, formulation, share))
     assert doc.solver.objective == len(chosen) == optimum
+
+
+def patch_planes(part: Part, of: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(P, 3) area-weighted centres and unit mean normals of the patches `of` (M,) groups."""
+    k = part.counted
+    w = part.areas[k]
+    centres = part.vertices[part.faces[k]].mean(axis=1)
+    count = of.max() + 1
+    c = np.stack([np.bincount(of[k], w * centres[:, i], count) for i in range(3)], axis=1)
+    n = np.stack([np.bincount(of[k], w * part.normals[k, i], count) for i in range(3)], axis=1)
+    total = np.bincount(of[k], w, count)[:, None]
+    return c / total, n / np.linalg.norm(n, axis=1, keepdims=True)
 
 
 def test_density_needs_more_views_than_visibility(part):
@@ -248,7 +287,9 @@ def test_partial_cover_claims_hold_independently(part, formulation, rows):
         assert doc.cover_rows is not None and doc.cover_rows.patch_of_face is not None
         of = np.asarray(doc.cover_rows.patch_of_face)
         rp, ap = patch_rows(r, part.areas, part.counted, doc.cover_rows.patch_of_face)
-        s, w = s_matrix(rp, ap, res, formulation), ap[rp.any(axis=1)]
+        c2w = [_c2w(c) for c in doc.candidates]
+        share = pinhole_share(rp, ap, *patch_planes(part, of), c2w, SMALL)
+        s, w = s_matrix(rp, ap, res, formulation, share), ap[rp.any(axis=1)]
         row_faces = [np.flatnonzero(of == p).tolist() for p in np.flatnonzero(rp.any(axis=1))]
     chosen = [v.id for v in doc.viewpoints]
     met = s[:, chosen].sum(axis=1) >= 1 - 1e-9

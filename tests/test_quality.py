@@ -8,14 +8,16 @@ import pytest
 import scipy.sparse as sp
 import trimesh
 
+from tests.conftest import look_down
 from vpp_core.camera.sensor import Sensor
 from vpp_core.candidates.generator import STANDOFF_MARGIN, standoff_for
 from vpp_core.candidates.sphere import fibonacci_directions, view_sphere
-from vpp_core.cover.density import STRAY_RAYS, cover_model, stray_free
+from vpp_core.cover.density import STRAY_RAYS, Cameras, cover_model, stray_free
 from vpp_core.cover.patches import make_patches
 from vpp_core.mesh.part import Part, load_mesh, part_from_arrays
 from vpp_core.plan.document import CandidateGenerator, PlanRequest, SolverSettings, Target
 from vpp_core.samples import sample_stl
+from vpp_core.trace.raytrace import trace_counts
 
 PAPER = Sensor()
 SMALL = Sensor(width_px=320, height_px=200, fov_x_deg=38.7, fov_y_deg=24.75)
@@ -116,7 +118,7 @@ def test_paper_candidates_stand_at_the_working_distance_along_the_normal():
 def test_default_candidates_reach_what_the_view_sphere_reaches():
     from vpp_core.plan.metrics import evaluate
     from vpp_core.plan.pipeline import candidates_for
-    from vpp_core.trace.raytrace import make_backend, trace_counts
+    from vpp_core.trace.raytrace import make_backend
 
     part = load_mesh(sample_stl(), "stl")
     backend = make_backend(part)
@@ -222,3 +224,32 @@ def test_a_patch_is_one_connected_piece_of_surface():
     left = centres[:, 0] < 2.5
     assert len(np.unique(split.of_face[left])) == 1 and len(np.unique(split.of_face[~left])) == 1
     assert split.of_face[left][0] != split.of_face[~left][0]
+
+
+def test_a_view_covers_no_more_of_a_patch_row_than_it_samples():
+    # a 600 × 150 mm facet (two triangles, one patch) under cameras 410 mm away whose frames
+    # are 288 mm wide: each samples 48 % of it at a pixel of r̄ / 1.2. Averaged over the
+    # facet its density would meet 83 % of the target, and two views would "cover" it;
+    # a view covers the share it samples, so the two at x = ±150 (96 % between them) do not
+    # and the third, at the centre, is needed
+    part = part_from_arrays(*plate_of(600.0, 150.0))
+    patches = patches_of(part, 1000.0)
+    assert patches.count == 1
+    views = look_down((-150.0, 0.0, 410.0), (150.0, 0.0, 410.0), (0.0, 0.0, 410.0))
+    r = trace_counts(part, SMALL, views).counts
+    target = SMALL.pixel_pitch_mm(410.0) * STANDOFF_MARGIN
+    cameras = Cameras(views, SMALL)
+    model = cover_model(r, part.areas, part.counted, target, "density", patches, None, cameras)
+    frame = 2 * 410.0 * np.tan(np.radians(SMALL.fov_x_deg) / 2)  # mm along x
+    s = model.matrix.toarray()[0]
+    assert s == pytest.approx(np.full(3, frame / 600.0), rel=0.02)  # the share each samples
+    assert s[0] + s[1] < 1 <= s.sum()
+    averaged = cover_model(r, part.areas, part.counted, target, "density", patches)
+    assert averaged.matrix.toarray()[0, 2] == pytest.approx(np.sqrt(frame / 600 * 1.44), rel=0.03)
+
+
+def plate_of(length: float, width: float) -> tuple[np.ndarray, np.ndarray]:
+    """(vertices, faces) of a length × width mm rectangle at z = 0, normal +Z, two triangles."""
+    x, y = length / 2, width / 2
+    v = np.array([[-x, -y, 0], [x, -y, 0], [x, y, 0], [-x, y, 0]], dtype=float)
+    return v, np.array([[0, 1, 2], [0, 2, 3]])

@@ -544,7 +544,8 @@ def test_a_resolution_sweep_keeps_each_region_s_own_target(part):
         by = {m.name: m for m in row.regions}
         assert by["top"].resolution_mm == 0.6 and by["default"].resolution_mm == row.resolution_mm
     row = next(r for r in study.rows if r.formulation == "density" and r.resolution_mm == 2.0)
-    alone = plan(part, request.model_copy(update={"target": Target(resolution_mm=2.0)}))
+    target = request.target.model_copy(update={"resolution_mm": 2.0})  # as the sweep's row
+    alone = plan(part, request.model_copy(update={"target": target}))
     assert row.viewpoints == len(alone.viewpoints)
     assert row.resolution.met_area == pytest.approx(alone.metrics.resolution.met_area)
     by_ids = request.model_copy(update={"regions": [Region(name="a", faces=[1], ignore=True)]})

@@ -7,6 +7,14 @@ S_ij = min(1, δ_ij / δ̄)  if δ_i ≥ δ̄,   else V_ij
 With patches (vpp_core.cover.patches), R and A are summed over each patch first and the
 rows are patches: a face is coverable when its patch is seen, and it is covered when its
 patch's row is. `faces` and `face_row` map rows back to faces either way.
+
+Given the cameras, a patch row also counts how much of the patch a view samples: R_pj rays
+where the view's pixels would put ρ_pj per mm² on the whole patch (its distance, incidence
+and place in the image) sample the share f_pj = min(1, R_pj / (ρ_pj A_p)) of it, at density
+sqrt(R_pj / (f_pj A_p)); S_pj = f_pj min(1, r̄ sqrt(R_pj / (f_pj A_p))). A view that sees a
+third of a patch, or of a large CAD facet that is a patch of its own, covers at most a third
+of its row, however fine its pixels there: rows of any size then ask for their whole area
+(f = 1 gives SPEC §3's S; docs/quality.md).
 """
 
 from __future__ import annotations
@@ -17,6 +25,8 @@ from typing import Literal
 import numpy as np
 import scipy.sparse as sp
 
+from vpp_core.camera.pose import Viewpoints
+from vpp_core.camera.sensor import Sensor
 from vpp_core.cover.patches import Patches
 
 Formulation = Literal["density", "visibility"]
@@ -52,6 +62,37 @@ class CoverModel:
         return np.asarray(self.faces[mask[self.face_row]])
 
 
+@dataclass(frozen=True, eq=False)
+class Cameras:
+    """The candidates R was traced from: where each stands and how fine its pixels are."""
+
+    views: Viewpoints
+    sensor: Sensor
+
+    def ray_density(self, points: np.ndarray, normals: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """(K,) rays per mm² that view cols[k] casts on a plane through points[k] (K, 3) mm
+        with unit normal normals[k] (K, 3): cos θ fx fy / (z² cos α), z the depth, α the
+        ray's angle off the optical axis, θ its incidence."""
+        d = points - self.views.positions[cols]
+        r = np.linalg.norm(d, axis=1)
+        z = np.einsum("kj,kj->k", d, self.views.gazes[cols])
+        cos_theta = np.abs(np.einsum("kj,kj->k", d, normals)) / np.maximum(r, 1e-300)
+        cos_alpha = np.maximum(z, 1e-300) / np.maximum(r, 1e-300)
+        fxy = self.sensor.fx * self.sensor.fy
+        return np.asarray(cos_theta * fxy / (np.maximum(z, 1e-300) ** 2 * cos_alpha))
+
+
+def seen_share(counts: sp.csr_array, patches: Patches, cameras: Cameras) -> np.ndarray:
+    """(nnz,) share f_pj of patch p that view j samples, for each entry of the patch R
+    `counts` (P, N): min(1, R_pj / (ρ_pj A_p)), ρ_pj the view's ray density on the patch's
+    plane (Cameras.ray_density at its centre and mean normal)."""
+    rows = np.repeat(np.arange(counts.shape[0]), np.diff(counts.indptr))
+    rho = cameras.ray_density(patches.centres[rows], patches.normals[rows], counts.indices)
+    whole = rho * patches.areas[rows]
+    share = np.divide(counts.data, whole, out=np.ones(len(rows)), where=whole > 0)
+    return np.asarray(np.minimum(share, 1.0))
+
+
 def density_matrix(counts: sp.sparray, areas: np.ndarray) -> sp.csr_array:
     """δ: (M, N) float64 csr, sqrt(R_ij / A_i); rows of zero-area faces are empty."""
     r = sp.csr_array(counts, dtype=np.float64)
@@ -75,16 +116,20 @@ def cover_model(
     formulation: Formulation = "density",
     patches: Patches | None = None,
     ignored: np.ndarray | None = None,
+    cameras: Cameras | None = None,
+    share: np.ndarray | None = None,
 ) -> CoverModel:
     """The covering rows for a target resolution r̄ (mm; one for all, or (M,) each face's own):
     S for `density`, V for `visibility`; per face, or per patch with each counted face taking
     its patch's row (a patch's faces share one target: vpp_core.plan.regions groups them).
     `ignored` (M,) faces get no row (ignored regions; patches hold counted faces only).
+    On patches with the `cameras` of R's columns, S counts the share of each patch a view
+    samples (module docstring); `share` (nnz,) gives it per entry of `counts` directly.
 
     Built on the seen rows' own sparsity pattern, one nnz-sized float array at a time (R of a
     309 k-face, 500-candidate model has 29 M entries, 0.35 GB per float64 CSR copy)."""
     if patches is not None:
-        return _patch_model(counts, counted, resolution_mm, formulation, patches)
+        return _patch_model(counts, counted, resolution_mm, formulation, patches, cameras)
     r = sp.csr_array(counts)
     seen = np.diff(r.indptr) > 0
     uncoverable = np.flatnonzero(counted & ~seen)
@@ -96,16 +141,52 @@ def cover_model(
     else:
         a = areas[rows]
         res = np.broadcast_to(np.asarray(resolution_mm, dtype=np.float64), areas.shape)[rows]
-        inv_area = np.divide(1.0, a, out=np.zeros(len(rows)), where=a > 0)
-        data = np.repeat(inv_area, per_row)
-        np.sqrt(np.multiply(sub.data, data, out=data), out=data)  # δ_ij
-        dense_enough = meets(np.add.reduceat(data, sub.indptr[:-1]), 1.0 / res)  # δ_i ≥ 1/r̄_i
+        data = s_entries(sub, a, res, None if share is None else share[_entries(r, rows)])
+        dense_enough = meets(np.add.reduceat(data, sub.indptr[:-1]), 1.0)  # reachable: Σ S ≥ 1
         dense_enough &= a > 0
-        np.multiply(data, np.repeat(res, per_row), out=data)
-        np.minimum(data, 1.0, out=data)  # S_ij = min(1, δ_ij r̄_i)
         data[~np.repeat(dense_enough, per_row)] = 1.0  # V_ij on rows short of δ̄
     matrix = sp.csr_array((data, sub.indices, sub.indptr), shape=sub.shape)
     return CoverModel(matrix, rows, np.arange(len(rows)), dense_enough, uncoverable)
+
+
+def s_entries(
+    counts: sp.csr_array, areas: np.ndarray, resolution_mm: np.ndarray, share: np.ndarray | None
+) -> np.ndarray:
+    """(nnz,) S_ij of each entry of R `counts` (rows, N) csr, for rows of `areas` (rows,) mm²
+    and targets r̄ (rows,) mm: min(1, r̄ sqrt(R_ij / A_i)), or with the sampled `share` f
+    (nnz,) f_ij min(1, r̄ sqrt(R_ij / (f_ij A_i))) (the module docstring)."""
+    per_row = np.diff(counts.indptr)
+    inv_area = np.divide(1.0, areas, out=np.zeros(len(areas)), where=areas > 0)
+    data = np.repeat(inv_area, per_row)
+    np.multiply(counts.data, data, out=data)  # R_ij / A_i
+    if share is not None:  # the rays fall on the share f_ij of the row
+        np.divide(data, share, out=data)
+    np.sqrt(data, out=data)  # δ_ij
+    np.multiply(data, np.repeat(resolution_mm, per_row), out=data)
+    np.minimum(data, 1.0, out=data)  # min(1, δ_ij r̄_i)
+    if share is not None:
+        np.multiply(data, share, out=data)
+    return data
+
+
+def patch_coverage(
+    counts: sp.sparray, patches: Patches, resolution_mm: np.ndarray, cameras: Cameras | None
+) -> sp.csr_array:
+    """S (P, N) of the patches from the face R `counts` (M, N), stray entries dropped, for the
+    patches' targets (P,) mm, with the sampled share where the `cameras` are given."""
+    r = stray_free(patches.sum_rows(counts))
+    r.sort_indices()
+    share = None if cameras is None else seen_share(r, patches, cameras)
+    data = s_entries(r, patches.areas, resolution_mm, share)
+    return sp.csr_array((data, r.indices, r.indptr), shape=r.shape)
+
+
+def _entries(r: sp.csr_array, rows: np.ndarray) -> np.ndarray:
+    """Positions in r.data (r canonical csr) of the entries of `rows`, in order."""
+    starts, ends = r.indptr[rows], r.indptr[rows + 1]
+    lengths = ends - starts
+    offsets = np.arange(lengths.sum()) - np.repeat(np.cumsum(lengths) - lengths, lengths)
+    return np.asarray(np.repeat(starts, lengths) + offsets)
 
 
 def stray_free(counts: sp.csr_array) -> sp.csr_array:
@@ -133,15 +214,20 @@ def _patch_model(
     resolution_mm: float | np.ndarray,
     formulation: Formulation,
     patches: Patches,
+    cameras: Cameras | None,
 ) -> CoverModel:
-    """cover_model on patch rows (summed R and A), stray entries dropped (`stray_free`); the
-    faces of patches no candidate samples are uncoverable."""
+    """cover_model on patch rows (summed R and A), stray entries dropped (`stray_free`), with
+    the share each view samples where the `cameras` are given; the faces of patches no
+    candidate samples are uncoverable."""
+    r = stray_free(patches.sum_rows(counts))
+    r.sort_indices()
     per_patch = cover_model(
-        stray_free(patches.sum_rows(counts)),
+        r,
         patches.areas,
         np.ones(patches.count, dtype=bool),
         patch_resolution(patches, resolution_mm),
         formulation,
+        share=None if cameras is None else seen_share(r, patches, cameras),
     )
     row_of_patch = np.full(patches.count, -1, dtype=np.int64)
     row_of_patch[per_patch.faces] = np.arange(len(per_patch.faces))

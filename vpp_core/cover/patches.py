@@ -69,6 +69,8 @@ class Patches:
     of_face: np.ndarray  # (M,) int64 patch of each face, -1 for faces not counted
     areas: np.ndarray  # (P,) float64 patch areas, mm²
     edge_mm: float  # the patch size asked for, mm
+    centres: np.ndarray  # (P, 3) float64 area-weighted centres of the patches' faces, mm
+    normals: np.ndarray  # (P, 3) float64 unit area-weighted mean normals of their faces
 
     @property
     def count(self) -> int:
@@ -141,7 +143,27 @@ def make_patches(
         of_face[counted] = connected_pieces(corners[counted], of_face[counted])
     used, of_face[counted] = np.unique(of_face[counted], return_inverse=True)
     patch_areas = np.bincount(of_face[counted], weights=areas[counted], minlength=len(used))
-    return Patches(of_face, patch_areas, edge_mm)
+    mean_centres, mean_normals = _means(
+        of_face[counted], areas[counted], centres[counted], normals[counted], len(used)
+    )
+    return Patches(of_face, patch_areas, edge_mm, mean_centres, mean_normals)
+
+
+def _means(
+    of_face: np.ndarray, areas: np.ndarray, centres: np.ndarray, normals: np.ndarray, count: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """(P, 3) area-weighted centres (mm) and unit mean normals of the patches `of_face` (K,)
+    of K faces with areas (K,) mm², centres and unit normals (K, 3)."""
+    w = areas + 1e-300
+    total = np.bincount(of_face, weights=w, minlength=count)[:, None]
+    c = np.column_stack(
+        [np.bincount(of_face, w * centres[:, k], minlength=count) for k in range(3)]
+    )
+    n = np.column_stack(
+        [np.bincount(of_face, w * normals[:, k], minlength=count) for k in range(3)]
+    )
+    norm = np.linalg.norm(n, axis=1, keepdims=True)
+    return c / np.maximum(total, 1e-300), n / np.maximum(norm, 1e-300)
 
 
 def connected_pieces(corners: np.ndarray, labels: np.ndarray) -> np.ndarray:

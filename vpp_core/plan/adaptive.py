@@ -46,7 +46,7 @@ QUICK_SHARE = 0.1
 
 Solve = Callable[[CoverModel, float], PartialCover]
 """solve(model, time_limit_s) -> cover: how the pipeline covers a model."""
-Model = Callable[[Trace], CoverModel]
+Model = Callable[[Viewpoints, Trace], CoverModel]
 """model(trace) -> the cover's rows for the request."""
 
 
@@ -86,7 +86,7 @@ def adapt(
         start = time.perf_counter()
         if start >= deadline:
             break
-        model = model_of(trace)
+        model = model_of(views, trace)
         cover = solve(model, quick)
         count = len(cover.result.selected)
         if rounds and count >= rounds[-1].views:

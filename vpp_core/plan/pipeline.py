@@ -16,7 +16,14 @@ import scipy.sparse as sp
 from vpp_core.camera.pose import Viewpoints, make_viewpoints
 from vpp_core.candidates.generator import GeneratorSettings, generate
 from vpp_core.cell.geometry import Cell, resolve
-from vpp_core.cover.density import CoverModel, cover_model, meets, patch_resolution, stray_free
+from vpp_core.cover.density import (
+    Cameras,
+    CoverModel,
+    cover_model,
+    meets,
+    patch_coverage,
+    patch_resolution,
+)
 from vpp_core.cover.partial import PartialCover, solve_partial
 from vpp_core.cover.patches import (
     MAX_PATCHES,
@@ -312,6 +319,7 @@ def finish(
             request.target.formulation,
             patches,
             targets.ignored,
+            Cameras(views, request.sensor),
         )
     with clock.stage("solve"):
         settings = _left(request.solver, clock.timings)
@@ -342,7 +350,8 @@ def finish(
     doc.timings_s = clock.timings
     doc.rays.reused = reused
     chosen = np.array([v.id for v in doc.viewpoints], dtype=np.int64)
-    doc.cover_rows = _cover_rows(part, targets, patches, model, trace, chosen)
+    cameras = Cameras(views, request.sensor)
+    doc.cover_rows = _cover_rows(part, targets, patches, model, trace, chosen, cameras)
     doc.adaptive = list(rounds)
     if cell is not None:
         free = request.model_copy(update={"setup": None})
@@ -380,9 +389,9 @@ def grow(
     patches = cover_patches(p, request.target, targets)
     t = request.target
 
-    def model_of(tr: Trace) -> CoverModel:
+    def model_of(vs: Viewpoints, tr: Trace) -> CoverModel:
         args = (tr.counts, p.areas, p.counted, targets.resolution_mm, t.formulation, patches)
-        return cover_model(*args, targets.ignored)
+        return cover_model(*args, targets.ignored, Cameras(vs, request.sensor))
 
     def quick(model: CoverModel, seconds: float) -> PartialCover:
         settings = request.solver.model_copy(update={"name": "greedy", "time_limit_s": seconds})
@@ -417,29 +426,26 @@ def _cover_rows(
     model: CoverModel,
     trace: Trace,
     chosen: np.ndarray,
+    cameras: Cameras,
 ) -> CoverRows:
-    """What the cover's rows were, what the plan samples of the patches' area, and the faces
-    hit only by rays too few to sample them."""
+    """What the cover's rows were, what the plan samples of the patches' area (met: Σ S ≥ 1
+    over the chosen views, S as the cover's rows count it), and the faces hit only by rays
+    too few to sample them."""
     if patches is None:
         return CoverRows(kind="faces", count=int(part.counted.sum()))
     unsampled = np.setdiff1d(model.uncoverable, spec_uncoverable(part, trace))
-    r = stray_free(patches.sum_rows(trace.counts))
+    res = patch_resolution(patches, targets.resolution_mm)
+    s = patch_coverage(trace.counts, patches, res, cameras)
     total = patches.areas.sum()
-    sampled_by_any = np.diff(r.indptr) > 0
-    mine = sp.csr_array(r[:, chosen])
-    density = np.sqrt(mine.multiply(1.0 / patches.areas[:, None]).tocsr()).sum(axis=1)
+    sampled_by_any = np.diff(s.indptr) > 0
+    mine = sp.csr_array(s[:, chosen])
     return CoverRows(
         kind="patches",
         count=patches.count,
         edge_mm=patches.edge_mm,
         sampled_area=float(patches.areas[np.diff(mine.indptr) > 0].sum() / total),
         max_sampled_area=float(patches.areas[sampled_by_any].sum() / total),
-        met_area=float(
-            patches.areas[
-                meets(density, 1 / patch_resolution(patches, targets.resolution_mm))
-            ].sum()
-            / total
-        ),
+        met_area=float(patches.areas[meets(mine.sum(axis=1), 1.0)].sum() / total),
         patch_of_face=patches.of_face.tolist(),
         unsampled=_uncoverable(part, unsampled),
     )

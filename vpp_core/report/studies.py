@@ -15,9 +15,10 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, Field
 
+from vpp_core.camera.pose import Viewpoints
 from vpp_core.candidates.generator import planning_mesh
 from vpp_core.cell.geometry import Cell
-from vpp_core.cover.density import CoverModel, Formulation, cover_model
+from vpp_core.cover.density import Cameras, CoverModel, Formulation, cover_model
 from vpp_core.cover.partial import PartialCover
 from vpp_core.errors import RegionError, VppError
 from vpp_core.mesh.part import Part, part_from_arrays
@@ -166,8 +167,8 @@ def _study(
 class _Solver:
     """Covers of one R at a resolution and formulation, as `plan` solves them, timed."""
 
-    def __init__(self, part: Part, trace: Trace, threads: int | None) -> None:
-        self.part, self.trace, self.threads = part, trace, threads
+    def __init__(self, part: Part, views: Viewpoints, trace: Trace, threads: int | None) -> None:
+        self.part, self.views, self.trace, self.threads = part, views, trace, threads
         self.seconds: list[float] = []
         self._visibility: dict[tuple[float, float | None], PartialCover] = {}
 
@@ -187,6 +188,7 @@ class _Solver:
             t.formulation,
             patches,
             targets.ignored,
+            Cameras(self.views, request.sensor),
         )
         key = (t.fraction, patches.edge_mm if patches else None)
         if t.formulation == "visibility" and key in self._visibility:
@@ -227,7 +229,7 @@ def resolution_sweep(
     check_limits(len(views), request.sensor.n_pixels, limits)
     _report(progress, "trace", 0, len(views))
     trace = trace_counts(part, request.sensor, views, backend=backend, threads=threads)
-    solver = _Solver(part, trace, threads)
+    solver = _Solver(part, views, trace, threads)
     rows: list[SweepRow] = []
     for formulation in FORMULATIONS:
         for r in resolutions:
@@ -281,7 +283,7 @@ def decimation_study(
         check_limits(len(views), request.sensor.n_pixels, limits)
         trace = trace_counts(planning, request.sensor, views, backend=backend, threads=threads)
         traced += trace.seconds
-        solver = _Solver(planning, trace, threads)
+        solver = _Solver(planning, views, trace, threads)
         for formulation in FORMULATIONS:
             req = _with_target(plain, request.target.resolution_mm, formulation)
             cover, model, targets = solver.cover(req)

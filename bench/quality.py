@@ -3,12 +3,15 @@ the view-sphere baseline; one JSON line per (mesh, formulation, setting).
 
     python bench/quality.py [MESH...] [--formulations density visibility]
                             [--settings default paper tilt best] [--time-limit 60]
-                            [--sphere 1000] [--out DIR]
+                            [--sphere 1000] [--elements 1] [--out DIR]
 
 Every setting runs `vpp plan MESH --units U ... -q -o DIR/<name>.json` as a child process (the
 paper's camera, r̄ = 0.18 mm, seed 0) and reports its count, solver status and bound, the
 SPEC §5 coverage and met area (per face), the patch figures of the default (sampled and met
-area), wall time and the child's peak RSS. The settings:
+area), wall time and the child's peak RSS, and an independent re-check: the selected views
+re-traced on the part split into area elements of at most `--elements` mm², the shares of the
+area they sample and meet at r̄ (SPEC §3 density per element, whatever the plan's rows were).
+The settings:
 
 - `default`: nothing but --units (and --formulation);
 - `paper`: --profile paper (the previous default: gazes along the normal at 500 mm, face rows);
@@ -31,6 +34,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import scipy.sparse as sp
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -38,9 +42,11 @@ sys.path.insert(0, str(ROOT / "bench"))
 
 from plan import default_meshes, manifest_units, run_child, vpp_command  # noqa: E402
 
+from vpp_core.camera.pose import make_viewpoints  # noqa: E402
 from vpp_core.camera.sensor import Sensor  # noqa: E402
 from vpp_core.candidates.sphere import view_sphere  # noqa: E402
-from vpp_core.cover.density import stray_free  # noqa: E402
+from vpp_core.cover.density import density_matrix, meets, stray_free  # noqa: E402
+from vpp_core.mesh.refine import refine  # noqa: E402
 from vpp_core.mesh.tessellate import load_part  # noqa: E402
 from vpp_core.plan.document import Target  # noqa: E402
 from vpp_core.plan.metrics import evaluate  # noqa: E402
@@ -70,17 +76,39 @@ def run_setting(
         return line | {"error": (err.strip().splitlines() or ["killed"])[-1], "killed": killed}
     doc = json.loads(doc_path.read_text())
     m, s, rows = doc["metrics"], doc["solver"], doc.get("cover_rows") or {}
-    return line | {
-        "views": len(doc["viewpoints"]),
-        "candidates": len(doc["candidates"]),
-        "status": s["status"],
-        "bound": s["bound"],
-        "coverage_area": round(m["coverage"]["area"], 4),
-        "max_area": round(m["coverage"]["max_area"], 4),
-        "met_area": round(m["resolution"]["met_area"], 4),
-        "patch_sampled": rows.get("sampled_area"),
-        "patch_met": rows.get("met_area"),
-        "rounds": [(r["candidates"], r["views"], r["added"]) for r in doc.get("adaptive", [])],
+    return (
+        line
+        | {
+            "views": len(doc["viewpoints"]),
+            "candidates": len(doc["candidates"]),
+            "status": s["status"],
+            "bound": s["bound"],
+            "coverage_area": round(m["coverage"]["area"], 4),
+            "max_area": round(m["coverage"]["max_area"], 4),
+            "met_area": round(m["resolution"]["met_area"], 4),
+            "patch_sampled": rows.get("sampled_area"),
+            "patch_met": rows.get("met_area"),
+            "rounds": [(r["candidates"], r["views"], r["added"]) for r in doc.get("adaptive", [])],
+        }
+        | (element_check(mesh, units, doc, args.elements) if args.elements else {})
+    )
+
+
+def element_check(mesh: Path, units: str, doc: dict[str, Any], max_area: float) -> dict[str, Any]:
+    """The plan's selected views re-traced on the part split into elements of at most
+    `max_area` mm² (vpp_core.mesh.refine), independent of its rows: the shares of the counted
+    area they sample (a ray lands) and meet (SPEC §3 density, summed over the views, ≥ 1 / r̄)."""
+    part = refine(load_part(mesh.read_bytes(), mesh.suffix[1:].lower(), units), max_area)
+    vp = doc["viewpoints"]
+    views = make_viewpoints(*([v[k] for v in vp] for k in ("position", "gaze", "up")))
+    counts = trace_counts(part, Sensor(**doc["sensor"]), views).counts
+    density = np.asarray(density_matrix(counts, part.areas).sum(axis=1)).ravel()
+    k, a = part.counted, part.areas
+    seen = np.diff(sp.csr_array(counts).indptr) > 0
+    met = meets(density, 1 / doc["target"]["resolution_mm"])
+    return {
+        "element_seen": round(float(a[k & seen].sum() / a[k].sum()), 4),
+        "element_met": round(float(a[k & met].sum() / a[k].sum()), 4),
     }
 
 
@@ -115,6 +143,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--time-limit", type=float, default=60.0)
     ap.add_argument("--sphere", type=int, default=1000, help="view-sphere viewpoints (0: none)")
     ap.add_argument("--out", type=Path, help="keep the plan documents here")
+    ap.add_argument(
+        "--elements", type=float, default=1.0, help="re-check plans on elements of this mm² (0: no)"
+    )
     args = ap.parse_args(argv)
     meshes = args.meshes or default_meshes()
     if not meshes:

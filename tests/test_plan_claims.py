@@ -87,7 +87,8 @@ def s_matrix(
     r: np.ndarray, areas: np.ndarray, res: float, formulation: str, share: np.ndarray | None = None
 ) -> np.ndarray:
     """SPEC §3 S (or V) written out densely from R; rows of unseen faces dropped. With the
-    sampled `share` f (rows, N) of each row (patch rows): f min(1, r̄ sqrt(R / (f A)))."""
+    sampled `share` f (rows, N) of each row (patch rows): min(1, f / u · min(1, r̄ sqrt(R /
+    (f A)))), u the row's largest share (what its best view samples)."""
     v = (r > 0).astype(float)
     seen = v.any(axis=1)
     if formulation == "visibility":
@@ -95,7 +96,8 @@ def s_matrix(
     f = np.ones_like(r) if share is None else np.where(r > 0, share, 1.0)
     with np.errstate(divide="ignore", invalid="ignore"):
         delta = np.where(areas[:, None] > 0, np.sqrt(r / (f * areas[:, None])), 0.0)
-    s = f * np.minimum(1.0, delta * res)
+    u = np.where(r > 0, f, 0.0).max(axis=1, keepdims=True)
+    s = np.minimum(1.0, f / np.where(u > 0, u, 1.0) * np.minimum(1.0, delta * res))
     ok = s.sum(axis=1) >= 1 - 1e-9
     s = np.where(ok[:, None], s, v)
     return s[seen]

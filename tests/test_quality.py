@@ -227,25 +227,49 @@ def test_a_patch_is_one_connected_piece_of_surface():
 
 
 def test_a_view_covers_no_more_of_a_patch_row_than_it_samples():
-    # a 600 × 150 mm facet (two triangles, one patch) under cameras 410 mm away whose frames
-    # are 288 mm wide: each samples 48 % of it at a pixel of r̄ / 1.2. Averaged over the
-    # facet its density would meet 83 % of the target, and two views would "cover" it;
-    # a view covers the share it samples, so the two at x = ±150 (96 % between them) do not
-    # and the third, at the centre, is needed
-    part = part_from_arrays(*plate_of(600.0, 150.0))
-    patches = patches_of(part, 1000.0)
-    assert patches.count == 1
-    views = look_down((-150.0, 0.0, 410.0), (150.0, 0.0, 410.0), (0.0, 0.0, 410.0))
+    # a 200 × 150 mm facet (two triangles, one patch) under cameras 410 mm away, their frames
+    # 288 mm wide, a pixel of r̄ / 1.2: the centre one samples all of it, those at x = ±154
+    # 45 % each. Averaged over the facet a side view's density would meet 80 % of the
+    # target, and the two sides would "cover" it; a view covers the share it samples, so
+    # the sides (90 % between them) do not, and the centre view alone does
+    part = part_from_arrays(*plate_of(200.0, 150.0))
+    views = look_down((-154.0, 0.0, 410.0), (154.0, 0.0, 410.0), (0.0, 0.0, 410.0))
+    s, averaged = facet_rows(part, views)
+    side = (100 - (154 - 144)) / 200  # each side frame's edge at ±(154 - 144) mm
+    assert s == pytest.approx([side, side, 1.0], rel=0.02)
+    assert s[0] + s[1] < 1 <= s[2]
+    assert averaged[:2] == pytest.approx(np.sqrt(side * 1.44) * np.ones(2), rel=0.02)
+
+
+def test_a_patch_no_view_samples_whole_asks_for_what_its_best_view_samples():
+    # the same facet with its left half under a roof: no camera above samples more than the
+    # right half, and the view that samples it (the centre one) covers the row; another
+    # covers the share it samples of that half (95 %)
+    roof = trimesh.creation.box([110.0, 170.0, 2.0])
+    roof.apply_translation([-50.0, 0.0, 21.0])
+    v, f = plate_of(200.0, 150.0)
+    part = part_from_arrays(np.vstack([v, roof.vertices]), np.vstack([f, roof.faces + len(v)]))
+    views = look_down((154.0, 0.0, 410.0), (0.0, 0.0, 410.0))
+    s, _ = facet_rows(part, views)
+    frame = 2 * 410.0 * np.tan(np.radians(SMALL.fov_x_deg) / 2)
+    right = (100 - (154 - frame / 2)) / 200  # the right camera: x from its frame's edge
+    centre = (100 - 5 / (1 - 22 / 410)) / 200  # the centre one: x past the roof's shadow
+    assert s == pytest.approx([right / centre, 1.0], rel=0.02)
+
+
+def facet_rows(part: Part, views) -> tuple[np.ndarray, np.ndarray]:
+    """S of the patch holding face 0 (the facet) for `views` of the SMALL sensor, 410 mm
+    away, r̄ = 1.2 pixels: (N,) with the sampled share, and (N,) averaged over the patch."""
+    centres = part.vertices[part.faces].mean(axis=1)
+    patches = make_patches(centres, part.normals, part.areas, part.counted, 1e3, None, part.faces)
     r = trace_counts(part, SMALL, views).counts
     target = SMALL.pixel_pitch_mm(410.0) * STANDOFF_MARGIN
-    cameras = Cameras(views, SMALL)
-    model = cover_model(r, part.areas, part.counted, target, "density", patches, None, cameras)
-    frame = 2 * 410.0 * np.tan(np.radians(SMALL.fov_x_deg) / 2)  # mm along x
-    s = model.matrix.toarray()[0]
-    assert s == pytest.approx(np.full(3, frame / 600.0), rel=0.02)  # the share each samples
-    assert s[0] + s[1] < 1 <= s.sum()
-    averaged = cover_model(r, part.areas, part.counted, target, "density", patches)
-    assert averaged.matrix.toarray()[0, 2] == pytest.approx(np.sqrt(frame / 600 * 1.44), rel=0.03)
+    out = []
+    for cameras in (Cameras(views, SMALL), None):
+        args = (r, part.areas, part.counted, target, "density", patches, None, cameras)
+        model = cover_model(*args)
+        out.append(model.matrix.toarray()[model.face_row[list(model.faces).index(0)]])
+    return out[0], out[1]
 
 
 def plate_of(length: float, width: float) -> tuple[np.ndarray, np.ndarray]:

@@ -154,7 +154,8 @@ def s_entries(
 ) -> np.ndarray:
     """(nnz,) S_ij of each entry of R `counts` (rows, N) csr, for rows of `areas` (rows,) mm²
     and targets r̄ (rows,) mm: min(1, r̄ sqrt(R_ij / A_i)), or with the sampled `share` f
-    (nnz,) f_ij min(1, r̄ sqrt(R_ij / (f_ij A_i))) (the module docstring)."""
+    (nnz,) min(1, f_ij / u_i · min(1, r̄ sqrt(R_ij / (f_ij A_i)))), u_i = max_j f_ij the
+    share of the row its best view samples (the module docstring)."""
     per_row = np.diff(counts.indptr)
     inv_area = np.divide(1.0, areas, out=np.zeros(len(areas)), where=areas > 0)
     data = np.repeat(inv_area, per_row)
@@ -165,8 +166,18 @@ def s_entries(
     np.multiply(data, np.repeat(resolution_mm, per_row), out=data)
     np.minimum(data, 1.0, out=data)  # min(1, δ_ij r̄_i)
     if share is not None:
-        np.multiply(data, share, out=data)
+        np.multiply(data, share / np.repeat(reach(counts.indptr, share), per_row), out=data)
+        np.minimum(data, 1.0, out=data)
     return data
+
+
+def reach(indptr: np.ndarray, share: np.ndarray) -> np.ndarray:
+    """(rows,) u_i: the largest share (nnz,) of each row of a csr with `indptr` (1 where the
+    row is empty)."""
+    out = np.ones(len(indptr) - 1)
+    full = np.diff(indptr) > 0
+    out[full] = np.maximum.reduceat(share, indptr[:-1][full])
+    return out
 
 
 def patch_coverage(

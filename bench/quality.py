@@ -18,10 +18,13 @@ The settings:
 - `tilt`: --profile paper --tilt 30 --min-coverage 0.999 (the flags docs/cad-meshes.md named);
 - `best`: the same with --candidates 2000.
 
-`sphere` lines give what `--sphere` viewpoints on view spheres around the part reach
-(vpp_core.candidates.sphere), traced in this process: the share of the counted area any of
-them sees (per face, SPEC §5) and the share of the patch area they sample. Meshes and units as
-bench/plan.py takes them (../shared/meshes and its MANIFEST.csv by default).
+`element` figures come on lines of their own after every plan, `sphere` lines last: Linux
+keeps a parent's peak RSS in the `ru_maxrss` of the children it forks, so tracing in this
+process first would inflate the children's figures. `sphere` lines give what `--sphere`
+viewpoints on view spheres around the part reach (vpp_core.candidates.sphere), traced in this
+process: the share of the counted area any of them sees (per face, SPEC §5) and the share of
+the patch area they sample. Meshes and units as bench/plan.py takes them (../shared/meshes
+and its MANIFEST.csv by default).
 """
 
 from __future__ import annotations
@@ -76,22 +79,18 @@ def run_setting(
         return line | {"error": (err.strip().splitlines() or ["killed"])[-1], "killed": killed}
     doc = json.loads(doc_path.read_text())
     m, s, rows = doc["metrics"], doc["solver"], doc.get("cover_rows") or {}
-    return (
-        line
-        | {
-            "views": len(doc["viewpoints"]),
-            "candidates": len(doc["candidates"]),
-            "status": s["status"],
-            "bound": s["bound"],
-            "coverage_area": round(m["coverage"]["area"], 4),
-            "max_area": round(m["coverage"]["max_area"], 4),
-            "met_area": round(m["resolution"]["met_area"], 4),
-            "patch_sampled": rows.get("sampled_area"),
-            "patch_met": rows.get("met_area"),
-            "rounds": [(r["candidates"], r["views"], r["added"]) for r in doc.get("adaptive", [])],
-        }
-        | (element_check(mesh, units, doc, args.elements) if args.elements else {})
-    )
+    return line | {
+        "views": len(doc["viewpoints"]),
+        "candidates": len(doc["candidates"]),
+        "status": s["status"],
+        "bound": s["bound"],
+        "coverage_area": round(m["coverage"]["area"], 4),
+        "max_area": round(m["coverage"]["max_area"], 4),
+        "met_area": round(m["resolution"]["met_area"], 4),
+        "patch_sampled": rows.get("sampled_area"),
+        "patch_met": rows.get("met_area"),
+        "rounds": [(r["candidates"], r["views"], r["added"]) for r in doc.get("adaptive", [])],
+    }
 
 
 def element_check(mesh: Path, units: str, doc: dict[str, Any], max_area: float) -> dict[str, Any]:
@@ -100,7 +99,8 @@ def element_check(mesh: Path, units: str, doc: dict[str, Any], max_area: float) 
     area they sample (a ray lands) and meet (SPEC §3 density, summed over the views, ≥ 1 / r̄)."""
     part = refine(load_part(mesh.read_bytes(), mesh.suffix[1:].lower(), units), max_area)
     vp = doc["viewpoints"]
-    views = make_viewpoints(*([v[k] for v in vp] for k in ("position", "gaze", "up")))
+    pose = [np.array([v[k] for v in vp], dtype=float) for k in ("position", "gaze", "up")]
+    views = make_viewpoints(*pose)
     counts = trace_counts(part, Sensor(**doc["sensor"]), views).counts
     density = np.asarray(density_matrix(counts, part.areas).sum(axis=1)).ravel()
     k, a = part.counted, part.areas
@@ -154,14 +154,21 @@ def main(argv: list[str] | None = None) -> int:
     units = manifest_units(meshes[0].parent)
     out = args.out or Path(tempfile.mkdtemp(prefix="vpp-quality-"))
     out.mkdir(parents=True, exist_ok=True)
-    for mesh in meshes:
+    checks = []  # traced here after every child: Linux keeps a parent's peak RSS in ru_maxrss
+    for mesh in meshes:  # of the children it forks, so a grown bench would inflate theirs
         unit = units.get(mesh.name, "mm")
-        if args.sphere:
-            print(json.dumps(sphere_reach(mesh, unit, args.sphere)), flush=True)
         for formulation in args.formulations:
             for setting in args.settings:
                 line = run_setting(mesh, unit, formulation, setting, args, out)
                 print(json.dumps(line), flush=True)
+                if args.elements and "views" in line:
+                    doc = out / f"{mesh.stem}-{formulation}-{setting}.json"
+                    checks.append((mesh, unit, line, doc))
+    for mesh, unit, line, doc in checks:
+        check = element_check(mesh, unit, json.loads(doc.read_text()), args.elements)
+        print(json.dumps({k: line[k] for k in ("mesh", "formulation", "setting")} | check))
+    for mesh in meshes if args.sphere else []:
+        print(json.dumps(sphere_reach(mesh, units.get(mesh.name, "mm"), args.sphere)), flush=True)
     return 0
 
 

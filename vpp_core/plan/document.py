@@ -320,16 +320,21 @@ class CoverRows(BaseModel):
     count: int
     """Distinct rows: patches with at least one counted face, or counted faces."""
     edge_mm: float | None = None
-    """The patch size asked for (mm): sqrt(25) r̄, larger on very large parts."""
+    """The patch size asked for (mm): 32 r̄ (5 r̄ at least on small parts, larger on very
+    large ones)."""
     sampled_area: float | None = None
     """Share of the counted area in patches the selected views sample (3 rays or more)."""
     max_sampled_area: float | None = None
     """The same with every candidate: what the candidates reach."""
     met_area: float | None = None
-    """Share of the counted area in patches whose density from the selected views,
-    Σ_j sqrt(R_pj / A_p), reaches 1 / r̄: the target met on sampled area."""
+    """Share of the counted area in patches whose rows the selected views meet, Σ_j S_pj ≥ 1
+    with S_pj = min(1, f_pj / u_p · min(1, r̄ sqrt(R_pj / (f_pj A_p)))): f_pj the share of
+    patch p that view j samples (its rays against the pinhole's ray density on the patch's
+    plane at its centre and mean normal), u_p the largest share any candidate samples
+    (docs/quality.md, stage 3b)."""
     patch_of_face: list[int] | None = None
-    """Per face, its patch (-1: not counted): R and area summed over a patch give its row."""
+    """Per face, its patch (-1: not counted): R and area summed over a patch give its row;
+    the patch's centre and mean normal are its faces' area-weighted means."""
     unsampled: Uncoverable | None = None
     """Counted faces that rays of some candidate hit, but in patches that no candidate samples
     with STRAY_RAYS (3) rays or more (grazing rays only): not in the cover."""

@@ -11,10 +11,12 @@ patch's row is. `faces` and `face_row` map rows back to faces either way.
 Given the cameras, a patch row also counts how much of the patch a view samples: R_pj rays
 where the view's pixels would put ρ_pj per mm² on the whole patch (its distance, incidence
 and place in the image) sample the share f_pj = min(1, R_pj / (ρ_pj A_p)) of it, at density
-sqrt(R_pj / (f_pj A_p)); S_pj = f_pj min(1, r̄ sqrt(R_pj / (f_pj A_p))). A view that sees a
-third of a patch, or of a large CAD facet that is a patch of its own, covers at most a third
-of its row, however fine its pixels there: rows of any size then ask for their whole area
-(f = 1 gives SPEC §3's S; docs/quality.md).
+sqrt(R_pj / (f_pj A_p)). A patch asks for what its best candidate samples of it, u_p =
+max_j f_pj (all of it where one view sees it whole), and a view covers its part of that:
+S_pj = min(1, f_pj / u_p · min(1, r̄ sqrt(R_pj / (f_pj A_p)))). A view that sees a third of a
+patch that another view sees whole, or of a large CAD facet that is a patch of its own,
+covers a third of its row, however fine its pixels there (f = u = 1 gives SPEC §3's S;
+docs/quality.md, stage 3b).
 """
 
 from __future__ import annotations
@@ -185,11 +187,19 @@ def patch_coverage(
 ) -> sp.csr_array:
     """S (P, N) of the patches from the face R `counts` (M, N), stray entries dropped, for the
     patches' targets (P,) mm, with the sampled share where the `cameras` are given."""
-    r = stray_free(patches.sum_rows(counts))
-    r.sort_indices()
-    share = None if cameras is None else seen_share(r, patches, cameras)
+    r, share = _patch_counts(counts, patches, cameras)
     data = s_entries(r, patches.areas, resolution_mm, share)
     return sp.csr_array((data, r.indices, r.indptr), shape=r.shape)
+
+
+def _patch_counts(
+    counts: sp.sparray, patches: Patches, cameras: Cameras | None
+) -> tuple[sp.csr_array, np.ndarray | None]:
+    """The patch R (P, N) from the face R `counts` (M, N), stray entries dropped, indices
+    sorted, and the share (nnz,) each entry samples where the `cameras` are given."""
+    r = stray_free(patches.sum_rows(counts))
+    r.sort_indices()
+    return r, None if cameras is None else seen_share(r, patches, cameras)
 
 
 def _entries(r: sp.csr_array, rows: np.ndarray) -> np.ndarray:
@@ -230,15 +240,14 @@ def _patch_model(
     """cover_model on patch rows (summed R and A), stray entries dropped (`stray_free`), with
     the share each view samples where the `cameras` are given; the faces of patches no
     candidate samples are uncoverable."""
-    r = stray_free(patches.sum_rows(counts))
-    r.sort_indices()
+    r, share = _patch_counts(counts, patches, cameras)
     per_patch = cover_model(
         r,
         patches.areas,
         np.ones(patches.count, dtype=bool),
         patch_resolution(patches, resolution_mm),
         formulation,
-        share=None if cameras is None else seen_share(r, patches, cameras),
+        share=share,
     )
     row_of_patch = np.full(patches.count, -1, dtype=np.int64)
     row_of_patch[per_patch.faces] = np.arange(len(per_patch.faces))

@@ -47,7 +47,7 @@ QUICK_SHARE = 0.1
 Solve = Callable[[CoverModel, float], PartialCover]
 """solve(model, time_limit_s) -> cover: how the pipeline covers a model."""
 Model = Callable[[Viewpoints, Trace], CoverModel]
-"""model(trace) -> the cover's rows for the request."""
+"""model(views, trace) -> the cover's rows for the request, R traced from `views`."""
 
 
 @dataclass(frozen=True)

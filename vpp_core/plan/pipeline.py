@@ -310,6 +310,7 @@ def finish(
     cell = cell_of(request, cell)
     targets = targets_of(part, request)
     part = targets.part  # ignored faces not counted
+    cameras = Cameras(views, request.sensor)
     with clock.stage("matrices"):
         patches = cover_patches(part, request.target, targets)
         model = cover_model(
@@ -320,7 +321,7 @@ def finish(
             request.target.formulation,
             patches,
             targets.ignored,
-            Cameras(views, request.sensor),
+            cameras,
         )
     with clock.stage("solve"):
         settings = _left(request.solver, clock.timings)
@@ -351,7 +352,6 @@ def finish(
     doc.timings_s = clock.timings
     doc.rays.reused = reused
     chosen = np.array([v.id for v in doc.viewpoints], dtype=np.int64)
-    cameras = Cameras(views, request.sensor)
     doc.cover_rows = _cover_rows(part, targets, patches, model, trace, chosen, cameras)
     doc.adaptive = list(rounds)
     if cell is not None:

@@ -465,7 +465,7 @@ def job_breakdown(
     else:
         enqueued = None
     store = open_store(store_url)
-    trace = art.trace_id(run["mesh_id"], request)
+    trace = art.trace_id(run["mesh_id"], request, art.doc_element_mm2(doc))
     per_worker: dict[str, dict[str, Any]] = {}
     others: list[tuple[float, float, float]] = []
     for ch in chunks:
@@ -598,7 +598,7 @@ def check_resolve(
     first, second = lines[0], lines[-1]
     store = open_store(store_url)
     part = art.get_part(store, second["_mesh_id"])
-    trace_id = art.trace_id(second["_mesh_id"], resolve)
+    trace_id = art.trace_id(second["_mesh_id"], resolve, art.doc_element_mm2(second["_doc"]))
     _, views, info = art.get_views(store, trace_id)
     trace = art.trace_from_bytes(store.get(art.counts_key(trace_id)))
     start = time.perf_counter()

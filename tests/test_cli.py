@@ -117,6 +117,8 @@ def test_plan_with_generated_candidates_writes_all_sections(tmp_path):
         "-q",
         "--sensor",
         _small_sensor(tmp_path),
+        "--resolution",
+        "1.2",  # about this sensor's pixel at its working distance: a few views
     )
     assert run.returncode == 0, run.stderr
     doc = json.loads(out.read_text())
@@ -151,6 +153,8 @@ def test_plan_with_generated_candidates_writes_all_sections(tmp_path):
         "-q",
         "--sensor",
         _small_sensor(tmp_path),
+        "--resolution",
+        "1.2",
     )
     assert json.loads(out2.read_text())["candidates"] == doc["candidates"]
 
@@ -160,7 +164,7 @@ def test_min_coverage_plans_a_partial_cover_and_reports_it(tmp_path):
     trimesh.creation.box([60, 40, 20]).export(mesh)
     out = tmp_path / "plan.json"
     common = ("--candidates", "40", "--seed", "1", "--sensor", _small_sensor(tmp_path), "-q")
-    common += ("--no-adaptive",)  # one pool for both plans: their counts compare
+    common += ("--no-adaptive", "--resolution", "1.2")  # one pool for both plans: they compare
     run = vpp("plan", mesh, *common, "--min-coverage", "0.9", "-o", out)
     assert run.returncode == 0, run.stderr
     assert "partial cover (min 90.00%)" in run.stdout and "sub-pixel faces" in run.stdout

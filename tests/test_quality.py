@@ -72,7 +72,7 @@ def test_patch_rows_sum_r_and_area_and_drop_stray_rays():
     clean = stray_free(sp.csr_array(summed)).toarray()
     assert (clean == np.where(summed >= STRAY_RAYS, summed, 0)).all()
     model = cover_model(sp.csc_array(r), part.areas, part.counted, 0.5, "density", patches)
-    areas = model.row_areas(part.areas)
+    areas = model.row_areas()
     assert areas.sum() == pytest.approx(part.areas[model.faces].sum())
     delta = np.sqrt(clean / patches.areas[:, None])  # the patch density, written out
     rows = np.flatnonzero(clean.any(axis=1))
@@ -178,9 +178,9 @@ def test_the_time_limit_is_the_whole_plans_budget(monkeypatch):
     limits: list[float] = []
     real = pipeline.solve
 
-    def spy(model, areas, target, settings, *args, **kwargs):
+    def spy(model, target, settings, *args, **kwargs):
         limits.append(settings.time_limit_s)
-        return real(model, areas, target, settings, *args, **kwargs)
+        return real(model, target, settings, *args, **kwargs)
 
     monkeypatch.setattr(pipeline, "solve", spy)
     budget = 20.0
@@ -277,3 +277,38 @@ def plate_of(length: float, width: float) -> tuple[np.ndarray, np.ndarray]:
     x, y = length / 2, width / 2
     v = np.array([[-x, -y, 0], [x, -y, 0], [x, y, 0], [-x, y, 0]], dtype=float)
     return v, np.array([[0, 1, 2], [0, 2, 3]])
+
+
+def test_two_views_of_one_end_of_a_facet_do_not_cover_its_other_end():
+    # one triangular facet 600 mm long, wider than any frame (288 mm at 410 mm): no view
+    # samples it whole, so its own row asks only for what its best view samples, and the
+    # view of its thick left end (73 % of it) covers that row alone. Traced on area elements
+    # (the default rows), a view covers only the elements it samples: the left views A and
+    # B meet 73 % of the facet, and the right end (23 %) needs its own view C
+    from vpp_core.plan.pipeline import elements_of, rows_model, rows_of
+    from vpp_core.trace.raytrace import make_backend
+
+    v = np.array([[-300.0, -75.0, 0.0], [300.0, -75.0, 0.0], [-300.0, 75.0, 0.0]])
+    part = part_from_arrays(v, np.array([[0, 1, 2]]))
+    views = look_down((-154.0, 0.0, 410.0), (-150.0, 0.0, 410.0), (154.0, 0.0, 410.0))
+    target = SMALL.pixel_pitch_mm(410.0) * STANDOFF_MARGIN
+    request = PlanRequest(sensor=SMALL, target={"resolution_mm": target})
+    split = elements_of(part, request)
+    assert split is not None and len(split.parent) >= 1000
+    met = {}
+    for name, el in (("facet", None), ("elements", split)):
+        backend = make_backend(el.part if el else part)
+        trace = trace_counts(part, SMALL, views, backend=backend, elements=el)
+        rows = rows_of(part, request, trace)
+        model = rows_model(rows, request, trace, Cameras(views, SMALL))
+        area = model.row_areas()
+        s = model.matrix.toarray()
+        met[name] = [
+            area[s[:, cols].sum(axis=1) >= 1 - 1e-9].sum() / 45_000
+            for cols in ([0], [0, 1], [0, 1, 2])
+        ]
+    assert met["facet"] == pytest.approx([1.0, 1.0, 1.0])
+    left = (300 * 288 + (298**2 - 10**2) / 2) / 4 / 45_000  # x in [-298, -10] under A
+    right = (300 * 288 - (298**2 - 10**2) / 2) / 4 / 45_000  # x in [10, 298] under C
+    assert met["elements"][1] == pytest.approx(left, abs=0.03)
+    assert met["elements"][2] == pytest.approx(left + right, abs=0.03)

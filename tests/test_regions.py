@@ -4,6 +4,7 @@ files and uploads, ignored faces, and a plan's claims re-computed face by face."
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import json
 
@@ -604,7 +605,7 @@ def test_default_profile_patches_hold_one_target_each_and_meet_it(part):
     """Patch rows (the default profile): no patch mixes regions, ignored faces are in none, and
     every patch that all candidates bring to its own target is brought there by the plan
     (R recounted independently, summed per patch, stray entries of < 3 rays dropped)."""
-    from tests.test_plan_claims import patch_rows
+    from tests.test_plan_claims import patch_planes, patch_rows, pinhole_share, traced_rows
     from vpp_core.plan.pipeline import plan
 
     regions = [
@@ -619,20 +620,25 @@ def test_default_profile_patches_hold_one_target_each_and_meet_it(part):
     )
     doc = PlanDocument.model_validate_json(plan(part, request).model_dump_json())
     assert doc.regions is not None and doc.cover_rows is not None
-    region = np.repeat(doc.regions.face_region[::2], doc.regions.face_region[1::2])
+    geo, parent, re, _ = traced_rows(part, doc)  # the faces, or the elements the rows are of
+    region = np.repeat(doc.regions.face_region[::2], doc.regions.face_region[1::2])[parent]
     of = np.asarray(doc.cover_rows.patch_of_face)
     assert (of[region == 1] == -1).all()
     for p in np.unique(of[of >= 0]):
         assert len(set(region[of == p].tolist())) == 1
-    counted = part.counted & (region != 1)
-    r = recount(part, SMALL, np.array([_c2w(c) for c in doc.candidates])).toarray()
-    rp, ap = patch_rows(r, part.areas, counted, of.tolist())
+    counted = geo.counted & (region != 1)
+    rp, ap = patch_rows(re, geo.areas, counted, of.tolist())
     res = np.zeros(len(ap))
     res[of[counted]] = np.where(region == 0, 0.8, 1.6)[counted]
     chosen = [v.id for v in doc.viewpoints]
-    delta = np.sqrt(rp / ap[:, None])
-    reach = delta.sum(axis=1) >= 1 / res * (1 - 1e-9)
-    met = delta[:, chosen].sum(axis=1) >= 1 / res * (1 - 1e-9)
+    c2w = [_c2w(c) for c in doc.candidates]
+    planes = patch_planes(dataclasses.replace(geo, counted=counted), of)
+    f = np.where(rp > 0, pinhole_share(rp, ap, *planes, c2w, SMALL), 1.0)  # sampled share
+    u = np.where(rp > 0, f, 0.0).max(axis=1, keepdims=True)
+    delta = np.sqrt(rp / (f * ap[:, None]))
+    s = np.minimum(1.0, f / np.where(u > 0, u, 1.0) * np.minimum(1.0, delta * res[:, None]))
+    reach = s.sum(axis=1) >= 1 - 1e-9
+    met = s[:, chosen].sum(axis=1) >= 1 - 1e-9
     assert (reach & (res == 0.8)).any() and not (reach & ~met).any()
     assert doc.cover_rows.met_area == pytest.approx((ap * met).sum() / ap.sum(), abs=1e-3)
 

@@ -76,6 +76,29 @@ def test_plan_matches_in_process_planner_and_two_workers_share_chunks(api, start
     assert served.solver.status == "optimal" and not served.rays.reused
 
 
+def test_a_default_plan_traced_on_area_elements_by_chunks_matches_in_process(
+    api, start_workers
+) -> None:
+    """The default rows split the bushing's larger faces into area elements: the workers'
+    chunks trace the elements and the served plan is the in-process one."""
+    mesh = upload_sample(api)
+    body = {
+        "mesh_id": mesh,
+        "candidates": {"count": 48, "seed": 3, "adaptive": False},
+        "target": {"resolution_mm": 0.3, "min_coverage": 1.0},
+    }
+    job = submit(api, body)
+    start_workers(2)
+    done = wait(api, job)
+    assert done["status"] == "succeeded", done
+    assert len(done["chunks"]) > 1
+    served = PlanDocument.model_validate_json(api.get(done["result_url"]).content)
+    assert served.cover_rows is not None and served.cover_rows.element_mm2 is not None
+    request = PlanRequest.model_validate({k: v for k, v in body.items() if k != "mesh_id"})
+    local = plan(load_mesh(sample_stl(), "stl"), request, threads=1)
+    same_plan(served, local)
+
+
 def test_identical_request_is_answered_from_the_store_and_new_target_reuses_r(
     api, start_workers
 ) -> None:

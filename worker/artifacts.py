@@ -27,6 +27,7 @@ import hashlib
 import io
 import json
 import re
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -56,36 +57,51 @@ def plan_id(mesh_id: str, request: PlanRequest) -> str:
         {
             "kind": "plan/1",
             "mesh_id": mesh_id,
-            "request": _no_setup(request.model_dump(mode="json")),
+            "request": _optional(request.model_dump(mode="json"), None),
         }
     )
 
 
-def trace_id(mesh_id: str, request: PlanRequest) -> str:
+def trace_id(mesh_id: str, request: PlanRequest, element_mm2: float | None = None) -> str:
     """Content id of R: mesh, sensor, candidates, backend and setup, which names its meshes by
-    content id (not target or solver); without a setup, the id it had before setups."""
+    content id (not target or solver), and the area elements traced (`element_mm2`, mm²:
+    vpp_core.plan.pipeline.elements_of); without a setup or elements, the id it had before."""
     dump = request.model_dump(mode="json", include={"sensor", "candidates", "backend", "setup"})
-    return digest({"kind": "trace/1", "mesh_id": mesh_id, **_no_setup(dump)})
+    return digest({"kind": "trace/1", "mesh_id": mesh_id, **_optional(dump, element_mm2)})
 
 
-def _no_setup(dump: dict[str, Any]) -> dict[str, Any]:
-    """`dump` without its `setup` key when that is null (ids stay those of before setups)."""
-    return {k: v for k, v in dump.items() if k != "setup" or v is not None}
+def _optional(dump: dict[str, Any], element_mm2: float | None) -> dict[str, Any]:
+    """`dump` without its `setup` key when that is null, with `element_mm2` where given (ids
+    stay those of before setups and elements)."""
+    out = {k: v for k, v in dump.items() if k != "setup" or v is not None}
+    return out if element_mm2 is None else {**out, "element_mm2": element_mm2}
 
 
-def pool_trace_id(mesh_id: str, request: PlanRequest, candidates: list[CandidateOut]) -> str:
-    """Content id of R over a candidate pool the adaptive rounds grew: mesh, sensor, backend
-    and every pose of the pool (the same pool is traced once)."""
+def pool_trace_id(
+    mesh_id: str,
+    request: PlanRequest,
+    candidates: list[CandidateOut],
+    element_mm2: float | None = None,
+) -> str:
+    """Content id of R over a candidate pool the adaptive rounds grew: mesh, sensor, backend,
+    the elements and every pose of the pool (the same pool is traced once)."""
     dump = request.model_dump(mode="json", include={"sensor", "backend", "setup"})
     poses = [c.model_dump(mode="json") for c in candidates]
-    return digest({"kind": "pool/1", "mesh_id": mesh_id, **_no_setup(dump), "poses": poses})
+    fields = _optional(dump, element_mm2)
+    return digest({"kind": "pool/1", "mesh_id": mesh_id, **fields, "poses": poses})
 
 
 def plan_trace_id(mesh_id: str, request: PlanRequest, doc: PlanDocument) -> str:
     """The id of the R a plan document was made from: its request's, or its grown pool's."""
+    element_mm2 = doc_element_mm2(doc)
     if doc.candidate_info.added:
-        return pool_trace_id(mesh_id, request, doc.candidates)
-    return trace_id(mesh_id, request)
+        return pool_trace_id(mesh_id, request, doc.candidates, element_mm2)
+    return trace_id(mesh_id, request, element_mm2)
+
+
+def doc_element_mm2(doc: PlanDocument) -> float | None:
+    """The largest element area (mm²) the plan's R was traced on, None for the faces."""
+    return doc.cover_rows.element_mm2 if doc.cover_rows else None
 
 
 def mesh_key(mesh_id: str) -> str:
@@ -364,9 +380,18 @@ def get_views(store: Store, trace: str) -> tuple[Sensor, Viewpoints, CandidateIn
 
 
 def trace_bytes(trace: Trace) -> bytes:
-    """R and its figures as npz bytes."""
-    c = trace.counts
+    """R (and the elements' R, where traced) and its figures as npz bytes."""
+    c, e = trace.counts, trace.elements
     figures = [trace.rays_cast, trace.pixels]
+    elements = {}
+    if e is not None and trace.element_mm2 is not None:
+        elements = dict(
+            e_data=e.data,
+            e_indices=e.indices,
+            e_indptr=e.indptr,
+            e_shape=np.array(e.shape),
+            element_mm2=np.array(trace.element_mm2),
+        )
     return _npz(
         data=c.data,
         indices=c.indices,
@@ -375,16 +400,26 @@ def trace_bytes(trace: Trace) -> bytes:
         figures=np.array(figures, np.int64),
         seconds=np.array(trace.seconds),
         backend=np.array(trace.backend),
+        **elements,
     )
 
 
 def trace_from_bytes(data: bytes) -> Trace:
     """Inverse of trace_bytes."""
     z = _unnpz(data)
-    shape = (int(z["shape"][0]), int(z["shape"][1]))
-    counts = sp.csc_array((z["data"], z["indices"], z["indptr"]), shape=shape)
+    counts = _csc(z, "")
     rays_cast, pixels = (int(x) for x in z["figures"])
-    return Trace(counts, rays_cast, pixels, str(z["backend"]), float(z["seconds"]))
+    trace = Trace(counts, rays_cast, pixels, str(z["backend"]), float(z["seconds"]))
+    if "element_mm2" not in z:
+        return trace
+    return replace(trace, elements=_csc(z, "e_"), element_mm2=float(z["element_mm2"]))
+
+
+def _csc(z: Any, prefix: str) -> sp.csc_array:
+    """The csc array stored under `prefix` (data, indices, indptr, shape) in npz `z`."""
+    shape = (int(z[prefix + "shape"][0]), int(z[prefix + "shape"][1]))
+    arrays = (z[prefix + "data"], z[prefix + "indices"], z[prefix + "indptr"])
+    return sp.csc_array(arrays, shape=shape)
 
 
 def get_trace(store: Store, trace: str) -> Trace:

@@ -32,9 +32,17 @@ from vpp_core.camera.sensor import Sensor
 from vpp_core.cell.geometry import Cell
 from vpp_core.errors import VppError
 from vpp_core.mesh.part import Part
+from vpp_core.mesh.refine import Elements, elements
 from vpp_core.plan.cellplan import scene_occluders, setup_backend
 from vpp_core.plan.document import PlanRequest, Timings
-from vpp_core.plan.pipeline import candidates_for, check_limits, finish, grow, spent_s
+from vpp_core.plan.pipeline import (
+    candidates_for,
+    check_limits,
+    elements_of,
+    finish,
+    grow,
+    spent_s,
+)
 from vpp_core.plan.warm import warm
 from vpp_core.report.plots import plan_plots
 from vpp_core.report.scene import plan_scene, unpack
@@ -127,12 +135,13 @@ def _plan(ctx: Context, plan: str) -> dict[str, Any]:
     mesh_id, request = art.get_request(ctx.store, plan)
     part = art.get_planned_part(ctx.store, mesh_id, request)
     cell = art.get_cell(ctx.store, request.setup)
-    trace_id = art.trace_id(mesh_id, request)
+    split = elements_of(part, request)
+    trace_id = art.trace_id(mesh_id, request, split.max_area_mm2 if split else None)
     timings = Timings()
     progress = stage_progress(ctx.meta)
     # stage `compiling` while numba compiles (fresh install); it counts in the plan's budget
     timings.compiling = round(warm(request.backend, progress), 4)
-    views, info, trace, reused = _trace(ctx, part, request, trace_id, timings, cell)
+    views, info, trace, reused = _trace(ctx, part, request, trace_id, timings, cell, split)
     progress("adaptive", 0, 1)
     start = time.perf_counter()
     views, info, trace, rounds = grow(
@@ -166,7 +175,7 @@ def _plan(ctx: Context, plan: str) -> dict[str, Any]:
     for name, png in pngs.items():  # before the document: it means done
         ctx.store.put(art.plot_key(f"plans/{plan}", name), png)
     if doc.candidate_info.added:  # R of the grown pool, for the scene and re-plans
-        pool = art.pool_trace_id(mesh_id, request, doc.candidates)
+        pool = art.plan_trace_id(mesh_id, request, doc)
         ctx.store.put(art.counts_key(pool), art.trace_bytes(trace))
     art.put_scene(ctx.store, plan, scene)
     art.put_plan(ctx.store, plan, doc)
@@ -181,18 +190,20 @@ def _trace(
     trace_id: str,
     timings: Timings,
     cell: Cell | None = None,
+    split: Elements | None = None,
 ) -> tuple[Viewpoints, Any, Trace, bool]:
     """(views, candidate info, R, reused): from the store, or traced under the trace's lock,
-    in the setup `cell`."""
+    in the setup `cell`, on the part's elements `split` where given."""
     if not ctx.store.exists(art.counts_key(trace_id)):
         lock = TraceLock(ctx.job.connection, trace_id, ctx.job.id, ctx.settings.plan_timeout_s)
         with lock.hold(lambda: ctx.store.exists(art.counts_key(trace_id)), ctx.meta.update):
             if not ctx.store.exists(art.counts_key(trace_id)):
-                backend = setup_backend(part, request, cell)
+                backend = setup_backend(part, request, cell)  # candidates see the faces
                 start = time.perf_counter()
                 views, info = _candidates(ctx, part, request, trace_id, backend, cell)
                 timings.candidates = round(time.perf_counter() - start, 4)
-                trace = _fan_out(ctx, part, request.sensor, views, trace_id, backend)
+                tracer = setup_backend(split.part, request, cell) if split else backend
+                trace = _fan_out(ctx, part, request.sensor, views, trace_id, tracer, split)
                 timings.trace = round(trace.seconds, 4)
                 ctx.store.put(art.counts_key(trace_id), art.trace_bytes(trace))
                 return views, info, trace, False
@@ -227,11 +238,14 @@ def _fan_out(
     views: Viewpoints,
     trace_id: str,
     backend: RayBackend,
+    split: Elements | None = None,
 ) -> Trace:
-    """R of all views: chunks enqueued for any worker, the ones still queued traced here."""
+    """R of all views: chunks enqueued for any worker, the ones still queued traced here (on
+    the elements `split` where given, `backend` over them)."""
     start = time.perf_counter()
     size = ctx.settings.chunk_views
-    chunks = _Chunks(ctx, part.id, trace_id, len(views), size, backend.name)
+    element_mm2 = split.max_area_mm2 if split else None
+    chunks = _Chunks(ctx, part.id, trace_id, len(views), size, backend.name, element_mm2)
     own: dict[int, Trace] = {}  # traced here: kept, not read back from the store
     while not chunks.all_done():
         index = chunks.take_back()
@@ -241,7 +255,7 @@ def _fan_out(
             continue
         lo, hi = chunk_range(index, size, len(views))
         own[index] = _trace_range(
-            ctx, part, sensor, views, lo, hi, backend, chunks.own_progress, chunks.watch_due
+            ctx, part, sensor, views, lo, hi, backend, chunks.own_progress, chunks.watch_due, split
         )
         ctx.store.put(art.chunk_key(trace_id, size, index), art.trace_bytes(own[index]))
         chunks.taken_done(index)
@@ -267,26 +281,50 @@ def _trace_range(
     backend: RayBackend | None,
     progress: Callable[[int], None],
     tick: Callable[[], None] | None = None,
+    split: Elements | None = None,
 ) -> Trace:
-    """R of views [lo, hi), with trace_counts' `progress` and `tick`."""
+    """R of views [lo, hi), with trace_counts' `progress` and `tick` (of the elements `split`
+    where given)."""
     subset = views.take(np.arange(lo, hi))
     threads = ctx.settings.threads
     return trace_counts(
-        part, sensor, subset, backend=backend, threads=threads, progress=progress, tick=tick
+        part,
+        sensor,
+        subset,
+        backend=backend,
+        threads=threads,
+        progress=progress,
+        tick=tick,
+        elements=split,
     )
 
 
 def chunk_job(
-    mesh_id: str, trace_id: str, size: int, index: int, backend: str | None = None
+    mesh_id: str,
+    trace_id: str,
+    size: int,
+    index: int,
+    backend: str | None = None,
+    element_mm2: float | None = None,
 ) -> dict[str, Any]:
     """Trace chunk `index` (views [index·size, (index+1)·size)) of `trace_id` into the store,
-    with the ray backend the plan asked for (its part of the trace id)."""
-    body = partial(_chunk, mesh_id=mesh_id, size=size, index=index, backend=backend)
+    with the ray backend the plan asked for, on the part's elements of at most `element_mm2`
+    (mm²) where given (each is part of the trace id)."""
+    body = partial(
+        _chunk, mesh_id=mesh_id, size=size, index=index, backend=backend, element_mm2=element_mm2
+    )
     return run_job(body, trace_id)
 
 
 def _chunk(
-    ctx: Context, trace_id: str, *, mesh_id: str, size: int, index: int, backend: str | None
+    ctx: Context,
+    trace_id: str,
+    *,
+    mesh_id: str,
+    size: int,
+    index: int,
+    backend: str | None,
+    element_mm2: float | None,
 ) -> dict[str, Any]:
     key = art.chunk_key(trace_id, size, index)
     if ctx.store.exists(key):
@@ -301,8 +339,10 @@ def _chunk(
         ctx.meta.update(done=done[0])
 
     cell = art.get_cell(ctx.store, art.get_setup(ctx.store, trace_id))
-    tracer = make_backend(part, backend, scene_occluders(part, sensor, cell))
-    trace = _trace_range(ctx, part, sensor, views, lo, hi, tracer, progress)
+    split = None if element_mm2 is None else elements(part, element_mm2)
+    traced = split.part if split else part
+    tracer = make_backend(traced, backend, scene_occluders(part, sensor, cell))
+    trace = _trace_range(ctx, part, sensor, views, lo, hi, tracer, progress, None, split)
     ctx.store.put(key, art.trace_bytes(trace))
     ctx.meta.update(force=True, done=hi - lo)
     return {"chunk": index, "views": hi - lo, "rays_cast": trace.rays_cast}
@@ -321,9 +361,17 @@ class _Chunks:
     """The chunk jobs of one fan-out and what the plan job knows of them."""
 
     def __init__(
-        self, ctx: Context, mesh_id: str, trace_id: str, n_views: int, size: int, backend: str
+        self,
+        ctx: Context,
+        mesh_id: str,
+        trace_id: str,
+        n_views: int,
+        size: int,
+        backend: str,
+        element_mm2: float | None = None,
     ) -> None:
         self.ctx, self.mesh_id, self.trace_id, self.backend = ctx, mesh_id, trace_id, backend
+        self.element_mm2 = element_mm2
         self.n_views, self.size = n_views, size
         self.n = -(-n_views // size)
         self.worker = ctx.job.worker_name or "?"
@@ -362,7 +410,7 @@ class _Chunks:
             calls.append(
                 Queue.prepare_data(
                     chunk_job,
-                    (self.mesh_id, self.trace_id, self.size, i, self.backend),
+                    (self.mesh_id, self.trace_id, self.size, i, self.backend, self.element_mm2),
                     job_id=rec["job"],
                     timeout=s.chunk_timeout_s,
                     result_ttl=s.result_ttl_s,

@@ -21,7 +21,7 @@ docs/quality.md, stage 3b).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Literal
 
 import numpy as np
@@ -42,26 +42,42 @@ MET_RTOL = 1e-9
 
 @dataclass(frozen=True, eq=False)
 class CoverModel:
-    """The rows of the set cover (one per coverable face or patch) and their faces."""
+    """The rows of the set cover (one per coverable face, patch or piece of a patch) and the
+    faces they are made of: pairs (faces[k], face_row[k]) with the area areas[k] the face
+    brings to that row (a face split into elements may lie in several rows)."""
 
     matrix: sp.csr_array  # (rows, N) float64 in (0, 1]: S or V restricted to coverable rows
-    faces: np.ndarray  # (F,) int64 coverable faces, ascending
-    face_row: np.ndarray  # (F,) int64 the row of each coverable face
+    faces: np.ndarray  # (K,) int64 coverable faces, ascending (repeated per row they lie in)
+    face_row: np.ndarray  # (K,) int64 the row of each pair
     density_rows: np.ndarray  # (rows,) bool: row demands the target density (else visibility)
     uncoverable: np.ndarray  # (u,) int64 counted faces seen by no candidate
+    areas: np.ndarray  # (K,) float64 mm²: what each pair's face brings to its row
 
-    def row_areas(self, areas: np.ndarray) -> np.ndarray:
-        """(rows,) mm²: the areas (M,) of each row's faces, summed."""
-        weights = areas[self.faces]
-        return np.asarray(
-            np.bincount(self.face_row, weights=weights, minlength=self.matrix.shape[0])
-        )
+    def row_areas(self) -> np.ndarray:
+        """(rows,) mm²: the areas of each row's faces, summed."""
+        rows = self.matrix.shape[0]
+        return np.asarray(np.bincount(self.face_row, weights=self.areas, minlength=rows))
 
     def faces_of(self, rows: np.ndarray) -> np.ndarray:
-        """Ascending face ids of the given rows (ids or a (rows,) bool mask)."""
+        """Ascending distinct face ids of the given rows (ids or a (rows,) bool mask)."""
         mask = np.zeros(self.matrix.shape[0], dtype=bool)
         mask[rows] = True
-        return np.asarray(self.faces[mask[self.face_row]])
+        return np.unique(self.faces[mask[self.face_row]])
+
+    def lifted(self, parent: np.ndarray) -> CoverModel:
+        """This model of elements as one of the faces `parent` (E,) they lie in: the same rows,
+        the pairs (parent face, row) with the elements' areas."""
+        faces = parent[self.faces]
+        order = np.argsort(faces, kind="stable")
+        coverable = np.unique(faces)
+        uncoverable = np.setdiff1d(np.unique(parent[self.uncoverable]), coverable)
+        return replace(
+            self,
+            faces=faces[order],
+            face_row=self.face_row[order],
+            areas=self.areas[order],
+            uncoverable=uncoverable,
+        )
 
 
 @dataclass(frozen=True, eq=False)
@@ -131,7 +147,7 @@ def cover_model(
     Built on the seen rows' own sparsity pattern, one nnz-sized float array at a time (R of a
     309 k-face, 500-candidate model has 29 M entries, 0.35 GB per float64 CSR copy)."""
     if patches is not None:
-        return _patch_model(counts, counted, resolution_mm, formulation, patches, cameras)
+        return _patch_model(counts, areas, counted, resolution_mm, formulation, patches, cameras)
     r = sp.csr_array(counts)
     seen = np.diff(r.indptr) > 0
     uncoverable = np.flatnonzero(counted & ~seen)
@@ -148,7 +164,8 @@ def cover_model(
         dense_enough &= a > 0
         data[~np.repeat(dense_enough, per_row)] = 1.0  # V_ij on rows short of δ̄
     matrix = sp.csr_array((data, sub.indices, sub.indptr), shape=sub.shape)
-    return CoverModel(matrix, rows, np.arange(len(rows)), dense_enough, uncoverable)
+    pairs = np.arange(len(rows))
+    return CoverModel(matrix, rows, pairs, dense_enough, uncoverable, areas[rows])
 
 
 def s_entries(
@@ -231,15 +248,16 @@ def patch_resolution(patches: Patches, resolution_mm: float | np.ndarray) -> np.
 
 def _patch_model(
     counts: sp.sparray,
+    areas: np.ndarray,
     counted: np.ndarray,
     resolution_mm: float | np.ndarray,
     formulation: Formulation,
     patches: Patches,
     cameras: Cameras | None,
 ) -> CoverModel:
-    """cover_model on patch rows (summed R and A), stray entries dropped (`stray_free`), with
-    the share each view samples where the `cameras` are given; the faces of patches no
-    candidate samples are uncoverable."""
+    """cover_model on patch rows (summed R and A; face areas (M,) mm²), stray entries dropped
+    (`stray_free`), with the share each view samples where the `cameras` are given; the faces
+    of patches no candidate samples are uncoverable."""
     r, share = _patch_counts(counts, patches, cameras)
     per_patch = cover_model(
         r,
@@ -254,4 +272,7 @@ def _patch_model(
     face_row = np.where(patches.of_face >= 0, row_of_patch[patches.of_face], -1)
     faces = np.flatnonzero(counted & (face_row >= 0))
     uncoverable = np.flatnonzero(counted & (face_row < 0))
-    return CoverModel(per_patch.matrix, faces, face_row[faces], per_patch.density_rows, uncoverable)
+    rows = face_row[faces]
+    return CoverModel(
+        per_patch.matrix, faces, rows, per_patch.density_rows, uncoverable, areas[faces]
+    )

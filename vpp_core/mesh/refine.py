@@ -15,10 +15,43 @@ way leaves a T-junction: the surface is unchanged, its triangulation is not conf
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
+import scipy.sparse as sp
 
 from vpp_core.errors import LimitError, MeshError
 from vpp_core.mesh.part import DEFAULT_MAX_FACES, Part, part_from_children
+
+
+@dataclass(frozen=True, eq=False)
+class Elements:
+    """A part's faces split into area elements: the elements as a Part and the face of the
+    part each lies in (the default cover's rows are made of elements, its reports of faces)."""
+
+    part: Part  # (E faces) the elements, in the part's plane and winding
+    parent: np.ndarray  # (E,) int64 the face of the part each element lies in
+    faces: int  # M, the faces of the part
+    max_area_mm2: float  # the largest element area asked for, mm²
+
+    def lift(self, counts: sp.sparray) -> sp.csc_array:
+        """(M, N) int32 per-face sums of the element rows of `counts` (E, N)."""
+        e = len(self.parent)
+        ones = np.ones(e, dtype=np.int32)
+        lift = sp.csr_array((ones, (self.parent, np.arange(e))), shape=(self.faces, e))
+        return sp.csc_array(lift @ sp.csc_array(counts), dtype=np.int32)
+
+
+def elements(part: Part, max_area_mm2: float, *, max_faces: int = DEFAULT_MAX_FACES) -> Elements:
+    """`part` split into elements of at most `max_area_mm2` (mm²; `refine`), with the face of
+    `part` each lies in (the part itself, face for face, where no face is larger)."""
+    if not _splits(part, max_area_mm2, max_faces):
+        return Elements(part, np.arange(part.n_faces), part.n_faces, max_area_mm2)
+    k = generations(part.areas, max_area_mm2)
+    vertices, faces, parent = bisect(part.vertices, part.faces, k)
+    note = f"faces larger than {max_area_mm2:g} mm² split: {part.n_faces} faces -> {len(faces)}"
+    child = part_from_children(part, vertices, faces, parent, note)
+    return Elements(child, parent, part.n_faces, max_area_mm2)
 
 
 def generations(areas: np.ndarray, max_area_mm2: float) -> np.ndarray:
@@ -37,6 +70,13 @@ def refined_faces(part: Part, max_area_mm2: float) -> int:
 def refine(part: Part, max_area_mm2: float, *, max_faces: int = DEFAULT_MAX_FACES) -> Part:
     """`part` with every face larger than `max_area_mm2` (mm²) bisected into elements that
     are not (`part` itself when none is); LimitError when that gives more than `max_faces`."""
+    return elements(part, max_area_mm2, max_faces=max_faces).part
+
+
+def _splits(part: Part, max_area_mm2: float, max_faces: int) -> bool:
+    """Whether some face of `part` is larger than `max_area_mm2` (mm²); MeshError
+    for a limit that is not a positive number, LimitError where the split gives more than
+    `max_faces` faces."""
     if not np.isfinite(max_area_mm2) or max_area_mm2 <= 0:
         raise MeshError(f"max face area must be a positive number of mm², got {max_area_mm2}")
     total = refined_faces(part, max_area_mm2)
@@ -45,12 +85,7 @@ def refine(part: Part, max_area_mm2: float, *, max_faces: int = DEFAULT_MAX_FACE
             f"splitting faces to at most {max_area_mm2:g} mm² gives {total} faces, the limit "
             f"is {max_faces}; ask for larger elements"
         )
-    if total == part.n_faces:
-        return part
-    k = generations(part.areas, max_area_mm2)
-    vertices, faces, parent = bisect(part.vertices, part.faces, k)
-    note = f"faces larger than {max_area_mm2:g} mm² split: {part.n_faces} faces -> {len(faces)}"
-    return part_from_children(part, vertices, faces, parent, note)
+    return total > part.n_faces
 
 
 def bisect(

@@ -27,7 +27,7 @@ from vpp_core.mesh.part import Part
 from vpp_core.plan.diagnostics import private_rows
 from vpp_core.plan.document import AdaptiveRound, CandidateGenerator, PlanRequest
 from vpp_core.trace.rays import RayBackend
-from vpp_core.trace.raytrace import Trace, join_traces, trace_counts
+from vpp_core.trace.raytrace import Trace, join_traces
 
 ROUNDS = 3
 """Rounds of new candidates at most."""
@@ -47,7 +47,10 @@ QUICK_SHARE = 0.1
 Solve = Callable[[CoverModel, float], PartialCover]
 """solve(model, time_limit_s) -> cover: how the pipeline covers a model."""
 Model = Callable[[Viewpoints, Trace], CoverModel]
-"""model(views, trace) -> the cover's rows for the request, R traced from `views`."""
+"""model(views, trace) -> the cover's rows for the request, R traced from `views` (in the ids
+of the faces or elements of the part `adapt` is given)."""
+Tracer = Callable[[Viewpoints], Trace]
+"""trace_of(views) -> R of new views, as the pool's was traced."""
 
 
 @dataclass(frozen=True)
@@ -67,16 +70,18 @@ def adapt(
     backend: RayBackend,
     model_of: Model,
     solve: Solve,
+    trace_of: Tracer,
     *,
-    threads: int | None = None,
     allowed: Allowed | None = None,
     deadline: float = float("inf"),
     keep: Callable[[Viewpoints], Viewpoints] | None = None,
 ) -> Pool:
-    """Grow the candidate pool where quick covers need it (see module docstring); new cameras
-    only where `allowed` (the setup's vpp_core.cell.reach predicate) lets them be, and only
-    those `keep` keeps (the setup's robot: vpp_core.plan.robotplan); no round starts after
-    `deadline` (time.perf_counter() seconds)."""
+    """Grow the candidate pool where quick covers need it (see module docstring), aiming at the
+    rows of `model_of` on `part` (the faces or elements its ids name; `backend` over it) and
+    tracing new views with `trace_of`; new cameras only where `allowed` (the setup's
+    vpp_core.cell.reach predicate) lets them be, and only those `keep` keeps (the setup's
+    robot: vpp_core.plan.robotplan); no round starts after `deadline` (time.perf_counter()
+    seconds)."""
     spec = request.candidates
     if not isinstance(spec, CandidateGenerator) or not spec.adaptive:
         return Pool(views, trace, [])
@@ -99,7 +104,7 @@ def adapt(
         rounds.append(_round(k, len(new), len(views), cover, start))
         if not len(new):
             break
-        added = trace_counts(part, request.sensor, new, backend=backend, threads=threads)
+        added = trace_of(new)
         trace = join_traces([trace, added], trace.seconds + added.seconds)
         views = _concat(views, new)
     return Pool(views, trace, rounds)

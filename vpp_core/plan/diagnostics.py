@@ -153,7 +153,7 @@ def diagnose(
     rays = r.data[first]
     forced = np.intersect1d(r.indices[first[rays >= WELL_SEEN_RAYS]], selected)
     under = undersampled(part, sensor, views, r, selected, ELEMENT_FOOTPRINTS * p * p)
-    coverable = float(areas[model.faces].sum())
+    coverable = float(model.areas.sum())
     return Diagnostics(
         pixel_footprint_mm=p,
         subpixel=_group(subpixel, areas),
@@ -295,16 +295,18 @@ def _causes(
     areas: np.ndarray,
     weak: np.ndarray,
 ) -> list[ViewCause]:
-    """One ViewCause per selected view from the faces of its private rows."""
+    """One ViewCause per selected view from its private rows and their faces."""
     out = []
+    row_areas = model.row_areas()
     for k, j in enumerate(selected):
-        faces = model.faces_of(private.indices[private.indptr[k] : private.indptr[k + 1]])
+        rows = private.indices[private.indptr[k] : private.indptr[k + 1]]
+        faces = model.faces_of(rows)
         w = weak[faces]
         out.append(
             ViewCause(
                 id=int(j),
                 private_faces=len(faces),
-                private_area_mm2=float(areas[faces].sum()),
+                private_area_mm2=float(row_areas[rows].sum()),
                 weak_faces=int(w.sum()),
                 weak_area_mm2=float(areas[faces[w]].sum()),
                 driven=bool(len(faces) and w.all()),

@@ -322,6 +322,11 @@ class CoverRows(BaseModel):
     edge_mm: float | None = None
     """The patch size asked for (mm): 32 r̄ (5 r̄ at least on small parts, larger on very
     large ones)."""
+    element_mm2: float | None = None
+    """Where set, the faces larger than this (mm², half a patch's area) were split into area
+    elements and traced as such (vpp_core.mesh.refine bisects each on its longest edge until
+    no piece is larger; the pieces of a face follow each other, in face order), and the
+    patches are made of the pieces (docs/quality.md, stage 3c)."""
     sampled_area: float | None = None
     """Share of the counted area in patches the selected views sample (3 rays or more)."""
     max_sampled_area: float | None = None
@@ -333,8 +338,9 @@ class CoverRows(BaseModel):
     plane at its centre and mean normal), u_p the largest share any candidate samples
     (docs/quality.md, stage 3b)."""
     patch_of_face: list[int] | None = None
-    """Per face, its patch (-1: not counted): R and area summed over a patch give its row;
-    the patch's centre and mean normal are its faces' area-weighted means."""
+    """Per face (per element where `element_mm2` is set), its patch (-1: not counted): R and
+    area summed over a patch give its row; the patch's centre and mean normal are its faces'
+    area-weighted means."""
     unsampled: Uncoverable | None = None
     """Counted faces that rays of some candidate hit, but in patches that no candidate samples
     with STRAY_RAYS (3) rays or more (grazing rays only): not in the cover."""

@@ -35,6 +35,7 @@ from vpp_core.cover.patches import (
 )
 from vpp_core.errors import LimitError
 from vpp_core.mesh.part import Part
+from vpp_core.mesh.refine import Elements, elements, refined_faces
 from vpp_core.plan.adaptive import adapt
 from vpp_core.plan.cellplan import allowed, annotate, cell_of, check_explicit, setup_backend
 from vpp_core.plan.cycle import TourOut, make_tour
@@ -83,6 +84,13 @@ AFTER_SHARE = 0.15
 writing the document): at 0.08 turbineblade's plan ended at 61.9 s of a 60 s limit on an idle
 2-core machine (4.3 s of metrics and diagnostics, 2 s writing its 199 k-face document); at
 0.12 a 238 k-face coupling's at 66.5 s (4.2 s of metrics, 4.4 s of diagnostics)."""
+ELEMENTS_PER_PATCH = 2.0
+"""The default cover's rows are made of area elements: faces larger than a patch's area /
+ELEMENTS_PER_PATCH are split (vpp_core.mesh.refine) and traced as such, so that a CAD facet
+larger than a patch is grouped into patches like any surface and a view covers only the
+pieces it samples (docs/quality.md, stage 3c)."""
+MAX_ELEMENTS = 1_000_000
+"""Elements at most: the element area doubles until the split stays within this."""
 ADAPT_SHARE = 0.5
 """No adaptive round starts once the plan has spent this share of its time limit."""
 
@@ -196,17 +204,16 @@ def _left(settings: SolverSettings, timings: Timings) -> SolverSettings:
 
 def solve(
     model: CoverModel,
-    areas: np.ndarray,
     target: Target,
     settings: SolverSettings,
     threads: int | None = None,
     costs: np.ndarray | None = None,
     mandatory: np.ndarray | None = None,
 ) -> PartialCover:
-    """Cover the rows (all, or target.min_coverage of their area (M,) mm²) as `settings` ask,
+    """Cover the rows (all, or target.min_coverage of their area) as `settings` ask,
     columns at `costs` (N,) (None: one each); `mandatory` (rows,) rows (regions with their own
     target) are covered whatever min_coverage, which then applies to the other rows' area."""
-    area = model.row_areas(areas)
+    area = model.row_areas()
     strict = np.zeros(len(area), bool) if mandatory is None else mandatory
     weights, fraction = mandatory_weights(area, strict, target.fraction)
     cover = solve_partial(
@@ -246,7 +253,6 @@ def plan(
     request: PlanRequest,
     *,
     limits: Limits = Limits(),
-    backend: RayBackend | None = None,
     threads: int | None = None,
     progress: Progress | None = None,
     load_s: float = 0.0,
@@ -257,7 +263,9 @@ def plan(
     clock = _Clock(progress)
     clock.timings.load = round(load_s, 4)
     cell = cell_of(request, cell)
-    backend = backend or setup_backend(part, request, cell)
+    split = elements_of(part, request)
+    backend = setup_backend(part, request, cell)  # candidates see the faces
+    tracer = setup_backend(split.part, request, cell) if split else backend
     check_request(request, limits, cell)
     # stage `compiling` while numba compiles, on a fresh install; it counts in the budget
     clock.timings.compiling = round(warm(request.backend, progress), 4)
@@ -267,12 +275,18 @@ def plan(
     with clock.stage("trace", len(views)):
         done = _counter(progress, "trace", len(views))
         trace = trace_counts(
-            part, request.sensor, views, backend=backend, threads=threads, progress=done
+            part,
+            request.sensor,
+            views,
+            backend=tracer,
+            threads=threads,
+            progress=done,
+            elements=split,
         )
     with clock.stage("adaptive"):
         spent = spent_s(clock.timings)
         views, info, trace, rounds = grow(
-            part, request, views, info, trace, backend, threads, cell=cell, spent_s=spent
+            part, request, views, info, trace, tracer, threads, cell=cell, spent_s=spent
         )
     return finish(
         part,
@@ -312,27 +326,19 @@ def finish(
     part = targets.part  # ignored faces not counted
     cameras = Cameras(views, request.sensor)
     with clock.stage("matrices"):
-        patches = cover_patches(part, request.target, targets)
-        model = cover_model(
-            trace.counts,
-            part.areas,
-            part.counted,
-            targets.resolution_mm,
-            request.target.formulation,
-            patches,
-            targets.ignored,
-            cameras,
-        )
+        rows = rows_of(targets.whole, request, trace)
+        own = rows_model(rows, request, trace, cameras)
     with clock.stage("solve"):
         settings = _left(request.solver, clock.timings)
-        must = targets.region_rows(model.face_row, model.faces, model.matrix.shape[0])
-        cover = solve(model, part.areas, request.target, settings, threads, None, must)
+        must = rows.targets.region_rows(own.face_row, own.faces, own.matrix.shape[0])
+        cover = solve(own, request.target, settings, threads, None, must)
         cover, tour = by_objective(
             cover,
             request.objective,
             views.positions,
-            lambda c: solve(model, part.areas, request.target, settings, threads, c, must),
+            lambda c: solve(own, request.target, settings, threads, c, must),
         )
+        model = own if rows.elements is None else own.lifted(rows.elements.parent)
     with clock.stage("metrics"):
         doc = document(
             part, request, views, info, trace, model, cover, clock.timings, tour, targets
@@ -352,7 +358,7 @@ def finish(
     doc.timings_s = clock.timings
     doc.rays.reused = reused
     chosen = np.array([v.id for v in doc.viewpoints], dtype=np.int64)
-    doc.cover_rows = _cover_rows(part, targets, patches, model, trace, chosen, cameras)
+    doc.cover_rows = _cover_rows(part, rows, model, trace, chosen, cameras)
     doc.adaptive = list(rounds)
     if cell is not None:
         free = request.model_copy(update={"setup": None})
@@ -381,36 +387,40 @@ def grow(
     spent_s: float = 0.0,
 ) -> tuple[Viewpoints, CandidateInfo, Trace, list[AdaptiveRound]]:
     """The candidate pool grown by the adaptive rounds (vpp_core.plan.adaptive), its R and
-    the rounds; unchanged when the request does not ask for them. New cameras only where
+    the rounds; unchanged when the request does not ask for them. `backend`: over the part,
+    or over its elements where `trace` is of them (made here when None). New cameras only where
     the setup (`cell`, else the request's) lets them be. `spent_s`: wall seconds the plan
     spent before (no round starts past ADAPT_SHARE of the time limit)."""
     cell = cell_of(request, cell)
-    targets = targets_of(part, request)
-    p = targets.part
-    patches = cover_patches(p, request.target, targets)
-    t = request.target
+    rows = rows_of(part, request, trace)
+    split = rows.elements
+    geometry = split.part if split else part
 
     def model_of(vs: Viewpoints, tr: Trace) -> CoverModel:
-        args = (tr.counts, p.areas, p.counted, targets.resolution_mm, t.formulation, patches)
-        return cover_model(*args, targets.ignored, Cameras(vs, request.sensor))
+        return rows_model(rows, request, tr, Cameras(vs, request.sensor))
 
     def quick(model: CoverModel, seconds: float) -> PartialCover:
         settings = request.solver.model_copy(update={"name": "greedy", "time_limit_s": seconds})
-        must = targets.region_rows(model.face_row, model.faces, model.matrix.shape[0])
-        return solve(model, p.areas, t, settings, threads, None, must)
+        must = rows.targets.region_rows(model.face_row, model.faces, model.matrix.shape[0])
+        return solve(model, request.target, settings, threads, None, must)
 
-    backend = backend or setup_backend(part, request, cell, trace.backend)
+    def trace_of(vs: Viewpoints) -> Trace:
+        return trace_counts(
+            part, request.sensor, vs, backend=backend, threads=threads, elements=split
+        )
+
+    backend = backend or setup_backend(geometry, request, cell, trace.backend)
     tally: Counter[str] = Counter()  # the robot's drops in the rounds
     deadline = time.perf_counter() + ADAPT_SHARE * request.solver.time_limit_s - spent_s
     pool = adapt(
-        part,
+        geometry,
         request,
         views,
         trace,
         backend,
         model_of,
         quick,
-        threads=threads,
+        trace_of,
         allowed=allowed(cell),
         deadline=deadline,
         keep=reachable_filter(part, cell, tally),
@@ -421,22 +431,17 @@ def grow(
 
 
 def _cover_rows(
-    part: Part,
-    targets: FaceTargets,
-    patches: Patches | None,
-    model: CoverModel,
-    trace: Trace,
-    chosen: np.ndarray,
-    cameras: Cameras,
+    part: Part, rows: Rows, model: CoverModel, trace: Trace, chosen: np.ndarray, cameras: Cameras
 ) -> CoverRows:
     """What the cover's rows were, what the plan samples of the patches' area (met: Σ S ≥ 1
     over the chosen views, S as the cover's rows count it), and the faces hit only by rays
-    too few to sample them."""
+    too few to sample them (`model` in face ids)."""
+    patches = rows.patches
     if patches is None:
         return CoverRows(kind="faces", count=int(part.counted.sum()))
     unsampled = np.setdiff1d(model.uncoverable, spec_uncoverable(part, trace))
-    res = patch_resolution(patches, targets.resolution_mm)
-    s = patch_coverage(trace.counts, patches, res, cameras)
+    res = patch_resolution(patches, rows.targets.resolution_mm)
+    s = patch_coverage(rows.counts(trace), patches, res, cameras)
     total = patches.areas.sum()
     sampled_by_any = np.diff(s.indptr) > 0
     mine = sp.csr_array(s[:, chosen])
@@ -444,6 +449,7 @@ def _cover_rows(
         kind="patches",
         count=patches.count,
         edge_mm=patches.edge_mm,
+        element_mm2=None if rows.elements is None else rows.elements.max_area_mm2,
         sampled_area=float(patches.areas[np.diff(mine.indptr) > 0].sum() / total),
         max_sampled_area=float(patches.areas[sampled_by_any].sum() / total),
         met_area=float(patches.areas[meets(mine.sum(axis=1), 1.0)].sum() / total),
@@ -456,6 +462,79 @@ def spec_uncoverable(part: Part, trace: Trace) -> np.ndarray:
     """Counted faces that no candidate's ray hits (SPEC §3), ascending."""
     seen = np.diff(sp.csr_array(trace.counts).indptr) > 0
     return np.flatnonzero(part.counted & ~seen)
+
+
+@dataclass(frozen=True, eq=False)
+class Rows:
+    """What the cover's rows are made of: the part's faces or, where the trace is of its area
+    elements, the elements; each with its target, grouped into patches (None: face rows)."""
+
+    targets: FaceTargets  # of the faces, or of the elements
+    patches: Patches | None
+    elements: Elements | None
+
+    def counts(self, trace: Trace) -> sp.csc_array:
+        """R of the rows' faces or elements."""
+        return trace.counts if self.elements is None else sp.csc_array(trace.elements)
+
+
+def rows_of(part: Part, request: PlanRequest, trace: Trace) -> Rows:
+    """The rows of `request`'s cover of `part` (as loaded) for R `trace`: on the elements it
+    was traced on (Trace.element_mm2), else on the faces."""
+    targets = targets_of(part, request)
+    split = None
+    if trace.elements is not None and trace.element_mm2 is not None:
+        split = _elements(part, trace.element_mm2)
+        targets = _element_targets(targets, split)
+    return Rows(targets, cover_patches(targets.part, request.target, targets), split)
+
+
+def rows_model(rows: Rows, request: PlanRequest, trace: Trace, cameras: Cameras) -> CoverModel:
+    """The cover model of `rows` for R `trace` of the `cameras` (in element ids where the
+    rows are elements: CoverModel.lifted gives it in face ids)."""
+    t = rows.targets
+    return cover_model(
+        rows.counts(trace),
+        t.part.areas,
+        t.part.counted,
+        t.resolution_mm,
+        request.target.formulation,
+        rows.patches,
+        t.ignored,
+        cameras,
+    )
+
+
+def elements_of(part: Part, request: PlanRequest) -> Elements | None:
+    """The area elements `request`'s rows are made of (patch rows): the faces of `part` larger
+    than element_area split; None for face rows or where no face is that large."""
+    if request.target.rows != "patches":
+        return None
+    split = _elements(part, element_area(part, request.target.resolution_mm))
+    return split if len(split.parent) > part.n_faces else None
+
+
+def element_area(part: Part, resolution_mm: float) -> float:
+    """The largest element area (mm²) for target r̄ (mm): a patch's area / ELEMENTS_PER_PATCH,
+    doubled until the split gives at most MAX_ELEMENTS (or the part's own faces)."""
+    area = float(part.areas[part.counted].sum())
+    limit = patch_edge(resolution_mm, area) ** 2 / ELEMENTS_PER_PATCH
+    while refined_faces(part, limit) > max(MAX_ELEMENTS, part.n_faces):
+        limit *= 2
+    return limit
+
+
+@lru_cache(maxsize=2)
+def _elements(part: Part, max_area_mm2: float) -> Elements:
+    """`part` split into elements of at most `max_area_mm2` (cached: the trace, the adaptive
+    rounds and the final cover ask for the same)."""
+    return elements(part, max_area_mm2)
+
+
+@lru_cache(maxsize=2)
+def _element_targets(targets: FaceTargets, split: Elements) -> FaceTargets:
+    """The face `targets` on the elements `split` (cached, so that their patches are too)."""
+    return targets.of_elements(split)
 
 
 def cover_patches(part: Part, target: Target, targets: FaceTargets | None = None) -> Patches | None:
@@ -572,7 +651,7 @@ def document(
         ),
         metrics=metrics,
         uncoverable=_uncoverable(part, spec_uncoverable(part, trace)),
-        partial=_partial_info(part, model, cover, request.target.fraction),
+        partial=_partial_info(model, cover, request.target.fraction),
         rays=RaysInfo(
             backend=trace.backend,
             per_view=request.sensor.n_pixels,
@@ -604,23 +683,20 @@ def mesh_info(part: Part) -> MeshInfo:
     )
 
 
-def _partial_info(
-    part: Part, model: CoverModel, cover: PartialCover, fraction: float
-) -> PartialInfo | None:
-    """The partial cover's figures, or None for the strict cover."""
+def _partial_info(model: CoverModel, cover: PartialCover, fraction: float) -> PartialInfo | None:
+    """The partial cover's figures, or None for the strict cover (`model` in face ids: a
+    face is left out where some row it lies in is)."""
     if fraction >= 1.0:
         return None
-    areas = part.areas[model.faces]
     left = model.faces_of(~cover.satisfied)
-    total = float(areas.sum())
+    total = float(model.areas.sum())
+    left_area = float(model.row_areas()[~cover.satisfied].sum())
     return PartialInfo(
         min_coverage=fraction,
         coverable_area_mm2=total,
         covered_area_mm2=cover.achieved,
         covered_fraction=cover.achieved / total if total > 0 else 1.0,
-        left_out=LeftOut(
-            faces=len(left), area_mm2=float(part.areas[left].sum()), ids=left.tolist()
-        ),
+        left_out=LeftOut(faces=len(left), area_mm2=left_area, ids=left.tolist()),
     )
 
 

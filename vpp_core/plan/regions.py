@@ -19,6 +19,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from vpp_core.errors import RegionError
 from vpp_core.mesh.part import Part
+from vpp_core.mesh.refine import Elements
 
 Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
 MAX_REGIONS = 256
@@ -129,6 +130,17 @@ class FaceTargets:
         out = np.zeros(rows, dtype=bool)
         out[face_row[(self.region[faces] >= 0) & ~self.ignored[faces]]] = True
         return out
+
+    def of_elements(self, elements: Elements) -> FaceTargets:
+        """The same targets on the part's area `elements`: each element its face's."""
+        parent = elements.parent
+        ignored = self.ignored[parent]
+        whole = elements.part
+        counted = whole.counted & ~ignored
+        counted.setflags(write=False)
+        planned = replace(whole, counted=counted) if ignored.any() else whole
+        res = self.resolution_mm[parent]
+        return FaceTargets(planned, whole, self.region[parent], res, ignored, self.warnings)
 
     def groups(self) -> NDArray[np.int64]:
         """(M,) group of each face (0, 1, ...): faces of one group share a target."""

@@ -18,7 +18,7 @@ from pydantic import BaseModel, Field
 from vpp_core.camera.pose import Viewpoints
 from vpp_core.candidates.generator import planning_mesh
 from vpp_core.cell.geometry import Cell
-from vpp_core.cover.density import Cameras, CoverModel, Formulation, cover_model
+from vpp_core.cover.density import Cameras, CoverModel, Formulation
 from vpp_core.cover.partial import PartialCover
 from vpp_core.errors import RegionError, VppError
 from vpp_core.mesh.part import Part, part_from_arrays
@@ -37,9 +37,11 @@ from vpp_core.plan.pipeline import (
     candidates_for,
     check_limits,
     check_request,
-    cover_patches,
     document,
+    elements_of,
     mesh_info,
+    rows_model,
+    rows_of,
     solve,
     targets_of,
 )
@@ -177,29 +179,19 @@ class _Solver:
         no r̄, but patch rows are sized by it)."""
         t = request.target
         start = time.perf_counter()
-        targets = targets_of(self.part, request)  # the regions keep their own targets
-        part = targets.part
-        patches = cover_patches(part, t, targets)
-        model = cover_model(
-            self.trace.counts,
-            part.areas,
-            part.counted,
-            targets.resolution_mm,
-            t.formulation,
-            patches,
-            targets.ignored,
-            Cameras(self.views, request.sensor),
-        )
-        key = (t.fraction, patches.edge_mm if patches else None)
+        rows = rows_of(self.part, request, self.trace)  # the regions keep their own targets
+        own = rows_model(rows, request, self.trace, Cameras(self.views, request.sensor))
+        key = (t.fraction, rows.patches.edge_mm if rows.patches else None)
         if t.formulation == "visibility" and key in self._visibility:
             cover = self._visibility[key]
         else:
-            must = targets.region_rows(model.face_row, model.faces, model.matrix.shape[0])
-            cover = solve(model, part.areas, t, request.solver, self.threads, None, must)
+            must = rows.targets.region_rows(own.face_row, own.faces, own.matrix.shape[0])
+            cover = solve(own, t, request.solver, self.threads, None, must)
             if t.formulation == "visibility":
                 self._visibility[key] = cover
         self.seconds.append(round(time.perf_counter() - start, 4))
-        return cover, model, targets
+        model = own if rows.elements is None else own.lifted(rows.elements.parent)
+        return cover, model, targets_of(self.part, request)
 
 
 def _with_target(request: PlanRequest, resolution: float, formulation: Formulation) -> PlanRequest:
@@ -219,8 +211,9 @@ def resolution_sweep(
     progress: Progress | None = None,
     cell: Cell | None = None,
 ) -> Study:
-    """#OVP against r̄ (mm) for both formulations from one trace (paper Fig. 3 right), in the
-    setup `cell` (else the request's)."""
+    """#OVP against r̄ (mm) for both formulations from one trace (paper Fig. 3 right; one per
+    set of area elements the rows' targets split the faces into), in the setup `cell` (else
+    the request's)."""
     start = time.perf_counter()
     check_study("resolution", resolutions, request, limits)
     cell = cell_of(request, cell)
@@ -228,19 +221,30 @@ def resolution_sweep(
     views, info = candidates_for(part, request, backend, cell)
     check_limits(len(views), request.sensor.n_pixels, limits)
     _report(progress, "trace", 0, len(views))
-    trace = trace_counts(part, request.sensor, views, backend=backend, threads=threads)
-    solver = _Solver(part, views, trace, threads)
+    solvers: dict[float | None, _Solver] = {}  # one R per set of elements the rows ask for
     rows: list[SweepRow] = []
+    seconds: list[float] = []
     for formulation in FORMULATIONS:
         for r in resolutions:
             _report(progress, "solve", len(rows), 2 * len(resolutions))
             req = _with_target(request, r, formulation)
+            split = elements_of(part, req)
+            key = split.max_area_mm2 if split else None
+            if key not in solvers:
+                tracer = setup_backend(split.part, request, cell) if split else backend
+                trace = trace_counts(
+                    part, request.sensor, views, backend=tracer, threads=threads, elements=split
+                )
+                solvers[key] = _Solver(part, views, trace, threads)
+            solver = solvers[key]
             cover, model, targets = solver.cover(req)
+            seconds.append(solver.seconds[-1])
             doc = document(
-                targets.part, req, views, info, trace, model, cover, Timings(), None, targets
+                targets.part, req, views, info, solver.trace, model, cover, Timings(), None, targets
             )
             rows.append(SweepRow(resolution_mm=r, **_row_fields(doc)))
-    return _study("resolution", part, request, rows, trace.seconds, solver.seconds, start)
+    traced = sum(s.trace.seconds for s in solvers.values())
+    return _study("resolution", part, request, rows, traced, seconds, start)
 
 
 def decimated_part(part: Part, ratio: float) -> Part:
@@ -278,10 +282,14 @@ def decimation_study(
     for k, ratio in enumerate(ratios):
         _report(progress, "ratio", k, len(ratios))
         planning = decimated_part(part, ratio)
+        split = elements_of(planning, plain)
         backend = setup_backend(planning, request, cell)
         views, info = candidates_for(planning, plain, backend, cell)
         check_limits(len(views), request.sensor.n_pixels, limits)
-        trace = trace_counts(planning, request.sensor, views, backend=backend, threads=threads)
+        tracer = setup_backend(split.part, request, cell) if split else backend
+        trace = trace_counts(
+            planning, request.sensor, views, backend=tracer, threads=threads, elements=split
+        )
         traced += trace.seconds
         solver = _Solver(planning, views, trace, threads)
         for formulation in FORMULATIONS:

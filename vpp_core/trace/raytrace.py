@@ -15,7 +15,7 @@ from collections import deque
 from collections.abc import Callable, Generator, Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import closing
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import get_args
 from weakref import WeakKeyDictionary
 
@@ -27,6 +27,7 @@ from vpp_core.camera.sensor import Sensor
 from vpp_core.cell.scene import Occluders
 from vpp_core.errors import VppError
 from vpp_core.mesh.part import Part
+from vpp_core.mesh.refine import Elements
 from vpp_core.trace.embree import EmbreeBackend
 from vpp_core.trace.occluded import OccludedBackend, scene_part
 from vpp_core.trace.packets import PacketBackend
@@ -71,17 +72,25 @@ class Trace:
     pixels: int  # N × pixels per view: the rays a plain per-pixel tracer would cast
     backend: str  # name of the RayBackend that traced it
     seconds: float = 0.0  # wall time of the tracing
+    elements: sp.csc_array | None = None  # (E, N) int32 R of the elements `counts` sums
+    element_mm2: float | None = None  # the elements' largest area (vpp_core.mesh.refine), mm²
 
 
 def join_traces(parts: Sequence[Trace], seconds: float) -> Trace:
     """One trace from traces of consecutive view ranges (columns side by side), `seconds` wall."""
     counts = sp.hstack([t.counts for t in parts], format="csc").astype(np.int32)
+    elements = None
+    if parts[0].elements is not None:
+        stacked = sp.hstack([t.elements for t in parts], format="csc")
+        elements = sp.csc_array(stacked, dtype=np.int32)
     return Trace(
         sp.csc_array(counts),
         sum(t.rays_cast for t in parts),
         sum(t.pixels for t in parts),
         parts[0].backend,
         seconds,
+        elements,
+        parts[0].element_mm2,
     )
 
 
@@ -106,9 +115,25 @@ def trace_counts(
     progress: Progress | None = None,
     cull: bool = True,
     tick: Callable[[], None] | None = None,
+    elements: Elements | None = None,
 ) -> Trace:
     """R for every view; with `cull`, only pixels inside the image of the part's hull are traced.
-    `tick()` is called as each block of rays is done; an exception it raises stops the trace."""
+    `tick()` is called as each block of rays is done; an exception it raises stops the trace.
+    With the part's `elements` (`backend` over elements.part), the elements are traced: their
+    R is Trace.elements, its per-face sums Trace.counts."""
+    if elements is not None:
+        t = trace_counts(
+            elements.part,
+            sensor,
+            views,
+            backend=backend,
+            threads=threads,
+            progress=progress,
+            cull=cull,
+            tick=tick,
+        )
+        lifted = elements.lift(t.counts)
+        return replace(t, counts=lifted, elements=t.counts, element_mm2=elements.max_area_mm2)
     start = time.perf_counter()
     backend = backend or make_backend(part)
     rotations = views.rotations()

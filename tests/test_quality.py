@@ -195,7 +195,7 @@ def test_the_time_limit_is_the_whole_plans_budget(monkeypatch):
     monkeypatch.setattr(pipeline, "warm", lambda *args: 0.0)
     t = doc.timings_s
     assert t.compiling == 3.0
-    spent = t.load + t.compiling + t.candidates + t.trace + t.adaptive
+    spent = t.load + t.compiling + t.candidates + t.trace + t.adaptive + t.matrices
     assert spent >= 10.0
     want = max(pipeline.FINAL_SHARE * budget, budget * (1 - pipeline.AFTER_SHARE) - spent)
     assert limits == [pytest.approx(want, abs=1e-3)]

@@ -188,9 +188,9 @@ def check_request(request: PlanRequest, limits: Limits, cell: Cell | None = None
 
 def spent_s(timings: Timings) -> float:
     """Wall seconds the plan spent before its final cover (load, compiling, candidates, trace,
-    adaptive)."""
+    adaptive, the cover's matrices)."""
     t = timings
-    return t.load + t.compiling + t.candidates + t.trace + t.adaptive
+    return t.load + t.compiling + t.candidates + t.trace + t.adaptive + t.matrices
 
 
 def _left(settings: SolverSettings, timings: Timings) -> SolverSettings:
@@ -479,11 +479,12 @@ class Rows:
 
 
 def rows_of(part: Part, request: PlanRequest, trace: Trace) -> Rows:
-    """The rows of `request`'s cover of `part` (as loaded) for R `trace`: on the elements it
-    was traced on (Trace.element_mm2), else on the faces."""
+    """The rows of `request`'s cover of `part` (as loaded) for R `trace`: patches of the
+    elements it was traced on (Trace.element_mm2), else of the faces, or the faces."""
     targets = targets_of(part, request)
     split = None
-    if trace.elements is not None and trace.element_mm2 is not None:
+    patches = request.target.rows == "patches"
+    if patches and trace.elements is not None and trace.element_mm2 is not None:
         split = _elements(part, trace.element_mm2)
         targets = _element_targets(targets, split)
     return Rows(targets, cover_patches(targets.part, request.target, targets), split)

@@ -143,7 +143,7 @@ class SolverSettings(_Strict):
         le=86_400,
         description="wall seconds for the whole plan after loading the mesh: candidates, "
         "tracing, the adaptive rounds and the covers; the final cover gets what the stages "
-        "before it left (at least 15 %), less 15 % kept for the tour, metrics, diagnostics "
+        "before it left (at least 15 %), less 17 % kept for the tour, metrics, diagnostics "
         "and the document",
     )
     mip_rel_gap: float = Field(0.0, ge=0, lt=1)

@@ -151,7 +151,9 @@ def main(argv: list[str] | None = None) -> int:
     if not meshes:
         print("no meshes: ../shared/meshes is absent", file=sys.stderr)
         return 0
-    units = manifest_units(meshes[0].parent)
+    units: dict[str, str] = {}  # each mesh's units from the MANIFEST.csv beside it
+    for folder in dict.fromkeys(mesh.parent for mesh in meshes):
+        units |= manifest_units(folder)
     out = args.out or Path(tempfile.mkdtemp(prefix="vpp-quality-"))
     out.mkdir(parents=True, exist_ok=True)
     checks = []  # traced here after every child: Linux keeps a parent's peak RSS in ru_maxrss

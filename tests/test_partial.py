@@ -182,18 +182,39 @@ def test_relaxation_bound_is_the_lp_value_and_any_multipliers_bound_it(seed):
     assert relaxation_bound(lp, 10.0) <= brute_partial(A.toarray(), w, 0.8, np.ones(8)) + 1e-9
 
 
+class Unheard:
+    """A HiGHS run (`vpp_core.cover.mip.Pending`) that answers nothing: `ready()` says
+    `ready`, its answer is TIMED_OUT (killed at its wall)."""
+
+    def __init__(self, ready: bool) -> None:
+        self._ready = ready
+
+    def ready(self) -> bool:
+        return self._ready
+
+    def answer(self):
+        from vpp_core.cover.mip import TIMED_OUT
+
+        return TIMED_OUT
+
+    def __enter__(self) -> Unheard:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        pass
+
+
 def test_lp_bound_alone_proves_an_integral_relaxation(monkeypatch):
     # disjoint views of equal area: any half of them is optimal and the LP value is n/2
-    monkeypatch.setattr("vpp_core.cover.partial.solve_mip", lambda *a, **k: pytest.fail("MIP ran"))
+    monkeypatch.setattr("vpp_core.cover.partial.submit", lambda *a, **k: pytest.fail("MIP ran"))
     out = solve_partial(sp.csr_array(np.eye(40)), np.ones(40), 0.5)
     assert (out.result.status, out.result.objective, out.result.bound) == ("optimal", 20, 20)
 
 
 def test_bound_is_the_lp_bound_when_the_mip_is_killed(monkeypatch):
-    # a MIP killed at its deadline answers nothing (vpp_core.cover.mip): the bound is still the LP's
-    from vpp_core.cover.mip import TIMED_OUT
-
-    monkeypatch.setattr("vpp_core.cover.partial.solve_mip", lambda *a, **k: TIMED_OUT)
+    # a MIP killed at its deadline answers nothing (vpp_core.cover.mip): the bound is still the
+    # LP's (it is ready at once, so the search beside it stops at its first look)
+    monkeypatch.setattr("vpp_core.cover.partial.submit", lambda *a, **k: Unheard(True))
     rng = np.random.default_rng(1)
     A = random_model(rng, 1000, 100, binary=True)
     w = rng.random(1000)
@@ -208,12 +229,27 @@ def test_no_mip_starts_once_the_time_is_spent(monkeypatch):
     # LP's head start nor a MIP, which could outlive the deadline by its grace, is waited for
     slow_greedy = lambda *a: time.sleep(0.4) or greedy_partial(*a)  # noqa: E731
     monkeypatch.setattr("vpp_core.cover.partial.greedy_partial", slow_greedy)
-    monkeypatch.setattr("vpp_core.cover.partial.solve_mip", lambda *a, **k: pytest.fail("MIP ran"))
+    monkeypatch.setattr("vpp_core.cover.partial.submit", lambda *a, **k: pytest.fail("MIP ran"))
     rng = np.random.default_rng(1)
     out = solve_partial(
         random_model(rng, 1000, 100, binary=True), rng.random(1000), 0.99, time_limit=0.3
     )
     assert out.result.status == "time_limit" and out.result.time_s < 0.4 + LP_HEAD_START_S
+
+
+@pytest.mark.parametrize("seed", [1, 3, 9, 26])  # models where the greedy start is not optimal
+def test_the_search_beside_the_mip_finds_the_optimum_the_greedy_misses(monkeypatch, seed):
+    # HiGHS answers nothing: what beats the greedy start is the row-weighting search's
+    rng = np.random.default_rng(seed)
+    A = random_model(rng, 60, 16, binary=seed % 2 == 0)
+    w = rng.random(60)
+    optimum = brute_partial(A.toarray(), w, 0.95, np.ones(16))
+    g, c, gw, required = partial_model(A, w, 0.95)
+    assert greedy_partial(g, c, gw, required).size > optimum
+    monkeypatch.setattr("vpp_core.cover.partial.submit", lambda *a, **k: Unheard(False))
+    out = solve_partial(A, w, 0.95, time_limit=3.0)
+    assert out.result.objective == optimum and out.achieved >= out.required - 1e-9
+    assert out.achieved == pytest.approx(w[out.satisfied].sum())
 
 
 def test_a_process_ends_cleanly_after_a_cancelled_relaxation():

@@ -9,9 +9,11 @@ import numpy as np
 import pytest
 
 from tests.test_cover_search import all_covers, random_instance
+from tests.test_partial import brute_partial, partial_model, random_model
 from vpp_core.cover import rowweight
 from vpp_core.cover.greedy import greedy_cover
 from vpp_core.cover.orlib import parse_orlib
+from vpp_core.cover.partial import greedy_partial
 from vpp_core.cover.problem import BUILD_TOL, is_cover
 from vpp_core.samples import window_cover
 
@@ -30,13 +32,32 @@ def test_it_finds_the_optimum_of_small_models(seed: int, real: bool) -> None:
     assert costs[found].sum() == pytest.approx(optimum)
 
 
+@pytest.mark.parametrize("seed", [1, 3, 9, 26])  # models where the greedy start is not optimal
+def test_it_finds_the_optimum_of_small_partial_models(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    A = random_model(rng, 60, 16, binary=seed % 2 == 0)
+    optimum = brute_partial(A.toarray(), w := rng.random(60), 0.95, np.ones(16))
+    A, costs, w, required = partial_model(A, w, 0.95)  # identical rows merged, weights > 0
+    start = greedy_partial(A, costs, w, required)
+    t0 = time.perf_counter()
+    found, at = rowweight.search(
+        A, costs, start, t0 + 20.0, target=optimum, area=w, budget=w.sum() - required + 1e-9
+    )
+    met = A @ np.isin(np.arange(A.shape[1]), found) >= 1.0 - BUILD_TOL
+    assert at is not None and found.size == optimum < start.size
+    assert w[met].sum() >= required - 1e-9
+
+
+@pytest.mark.parametrize("partial", [False, True])
 @pytest.mark.parametrize("real", [False, True])
-def test_incremental_scores_equal_a_recount(real: bool) -> None:
+def test_incremental_scores_equal_a_recount(real: bool, partial: bool) -> None:
     A, costs = random_instance(3, real, m=60, n=20)
     dense = A.toarray()
-    model = rowweight._model(A, costs)
-    assert np.array_equal(model[-1], dense.max(axis=1))
-    S = rowweight._start(greedy_cover(A, costs), model, 0)
+    area = np.random.default_rng(3).random(60) + 0.1 if partial else None
+    model = rowweight._model(A, costs, area)
+    assert np.array_equal(model[-2], dense.max(axis=1))
+    budget = 0.1 * area.sum() if partial else 0.5
+    S = rowweight._start(greedy_cover(A, costs), model, 0, budget)
     f = np.vectorize(lambda c: 1.0 if c >= 1.0 - BUILD_TOL else c)
     for _ in range(5):
         rowweight._walk(37, 1.0 - 1e-9, -np.inf, 10**9, *model, *rowweight._fields(S))
@@ -49,7 +70,9 @@ def test_incremental_scores_equal_a_recount(real: bool) -> None:
         assert sorted(S.short[: S.count[1]]) == list(short)
         assert sorted(S.sel[: S.count[0]]) == list(np.flatnonzero(S.x))
         assert S.money[0] == pytest.approx(costs[S.x].sum())
-        assert is_cover(A, np.flatnonzero(S.best)) and S.money[1] == costs[S.best].sum()
+        assert S.money[2] == pytest.approx(model[-1][short].sum())
+        best_short = dense @ S.best < 1.0 - BUILD_TOL
+        assert model[-1][best_short].sum() <= budget and S.money[1] == costs[S.best].sum()
 
 
 def test_it_stops_at_target_and_deadline() -> None:

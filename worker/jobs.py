@@ -42,6 +42,7 @@ from vpp_core.plan.pipeline import (
     finish,
     grow,
     spent_s,
+    tracer_of,
 )
 from vpp_core.plan.warm import warm
 from vpp_core.report.plots import plan_plots
@@ -202,7 +203,7 @@ def _trace(
                 start = time.perf_counter()
                 views, info = _candidates(ctx, part, request, trace_id, backend, cell)
                 timings.candidates = round(time.perf_counter() - start, 4)
-                tracer = setup_backend(split.part, request, cell) if split else backend
+                tracer = tracer_of(split, request, cell, backend)
                 trace = _fan_out(ctx, part, request.sensor, views, trace_id, tracer, split)
                 timings.trace = round(trace.seconds, 4)
                 ctx.store.put(art.counts_key(trace_id), art.trace_bytes(trace))

@@ -1,11 +1,13 @@
 """Row-weighting local search for the cover min c·y, A y >= 1, y binary (A in [0, 1], M × N).
 
-After Gao, Weise and Li's RWLS (2015), extended to costs and to partial coverage. The search
+After Gao, Weise and Li's RWLS (2015), extended to costs, to real coefficients and to
+partial covers (short rows of at most a budget of area). The search
 keeps a set of columns cheaper than the best cover and walks from one such set to the next:
 it drops the selected column that loses the least weighted demand per unit cost, adds the
 column that meets the most weighted demand per unit cost in a random row left short, and
 raises the weight of every row left short, so that rows the search keeps failing become
-expensive to leave. Whenever the set covers every row it is the new best, and columns are
+expensive to leave. Whenever the set covers the rows (all of them, or all but a budget of
+their area) it is the new best, and columns are
 dropped until it is cheaper again. Configuration checking (a dropped column may come back
 only once a column sharing one of its rows has changed) and a tabu on the last column added
 stop it from cycling.
@@ -67,14 +69,15 @@ class _State:
     spot: Arr  # (M,) int64, position in short or -1
     best: Arr  # (N,) bool, best cover
     count: Arr  # (5,) int64: selected, short rows, step, tabu column, step of the best
-    money: Arr  # (2,) float64: current cost, best cost
+    money: Arr  # (5,) float64: current cost, best cost, area of the short rows, budget,
+    # 1 / mean row area
 
 
 @kernel
 def _flip(
     j: int, cp: Arr, ci: Arr, cd: Arr, rp: Arr, ri: Arr, rd: Arr, costs: Arr, rowmax: Arr,
-    x: Arr, sel: Arr, where: Arr, cov: Arr, w: Arr, score: Arr, stamp: Arr, canadd: Arr,
-    short: Arr, spot: Arr, count: Arr, money: Arr,
+    area: Arr, x: Arr, sel: Arr, where: Arr, cov: Arr, w: Arr, score: Arr, stamp: Arr,
+    canadd: Arr, short: Arr, spot: Arr, count: Arr, money: Arr,
 ) -> None:  # fmt: skip
     """Select column j if it is not selected, else drop it; keep every score up to date."""
     on = not x[j]
@@ -94,11 +97,13 @@ def _flip(
         if old >= _MET and new < _MET:
             spot[i], short[count[1]] = count[1], i
             count[1] += 1
+            money[2] += area[i]
         elif old < _MET and new >= _MET:
             last = short[count[1] - 1]
             short[spot[i]], spot[last] = last, spot[i]
             spot[i] = -1
             count[1] -= 1
+            money[2] -= area[i]
     x[j] = on
     s = 0.0
     for q in range(cp[j], cp[j + 1]):
@@ -121,19 +126,20 @@ def _flip(
 @kernel
 def _walk(
     steps: int, need: float, target: float, patience: int, cp: Arr, ci: Arr, cd: Arr,
-    rp: Arr, ri: Arr, rd: Arr, costs: Arr, rowmax: Arr, x: Arr, sel: Arr, where: Arr,
-    cov: Arr, w: Arr, score: Arr, stamp: Arr, canadd: Arr, short: Arr, spot: Arr, best: Arr,
-    count: Arr, money: Arr,
+    rp: Arr, ri: Arr, rd: Arr, costs: Arr, rowmax: Arr, area: Arr, x: Arr, sel: Arr,
+    where: Arr, cov: Arr, w: Arr, score: Arr, stamp: Arr, canadd: Arr, short: Arr, spot: Arr,
+    best: Arr, count: Arr, money: Arr,
 ) -> bool:  # fmt: skip
-    """Run `steps` steps; a cover must be cheaper than the best by `need`.
+    """Run `steps` steps; a cover must be cheaper than the best by `need`. A selection is a
+    cover when the rows it leaves short weigh (area) no more than the budget (money[3]).
 
     True once the best costs `target` or `patience` steps went by without a cheaper cover.
     """
-    args = (cp, ci, cd, rp, ri, rd, costs, rowmax, x, sel, where, cov, w, score, stamp,
+    args = (cp, ci, cd, rp, ri, rd, costs, rowmax, area, x, sel, where, cov, w, score, stamp,
             canadd, short, spot, count, money)  # fmt: skip
     for _ in range(steps):
         count[2] += 1
-        if count[1] == 0 and money[0] <= money[1] - need:  # a cheaper cover: keep it
+        if money[2] <= money[3] and money[0] <= money[1] - need:  # a cheaper cover: keep it
             best[:] = x
             money[1], count[4] = money[0], count[2]
             if money[1] <= target + 1e-9:
@@ -142,19 +148,19 @@ def _walk(
             return True
         while money[0] > money[1] - need and count[0] > 0:  # cheaper than the best again
             _flip(_drop_pick(-1, sel, count, score, costs, stamp), *args)
-        if count[1] == 0:
+        if money[2] <= money[3]:
             continue
         if count[0] > 0:
             _flip(_drop_pick(count[3], sel, count, score, costs, stamp), *args)
-        while count[1] > 0:  # add for rows left short while the budget allows
+        while money[2] > money[3]:  # add for rows left short while the money allows
             i = short[np.random.randint(count[1])]
             k = _add_pick(i, rp, ri, x, canadd, score, costs, stamp)
             if k < 0 or money[0] + costs[k] > money[1] - need:  # k < 0: only by rounding
-                _weigh(rp, ri, rd, x, cov, w, score, short, count)
+                _weigh(rp, ri, rd, area, x, cov, w, score, short, count, money)
                 break
             _flip(k, *args)
             count[3] = k
-            _weigh(rp, ri, rd, x, cov, w, score, short, count)
+            _weigh(rp, ri, rd, area, x, cov, w, score, short, count, money)
             t = 0
             while t < count[0]:  # drop what the new column made redundant
                 j = sel[t]
@@ -166,14 +172,16 @@ def _walk(
 
 
 @inline
-def _weigh(rp: Arr, ri: Arr, rd: Arr, x: Arr, cov: Arr, w: Arr, score: Arr, short: Arr,
-           count: Arr) -> None:  # fmt: skip
-    """Raise the weight of every row left short by 1."""
+def _weigh(rp: Arr, ri: Arr, rd: Arr, area: Arr, x: Arr, cov: Arr, w: Arr, score: Arr,
+           short: Arr, count: Arr, money: Arr) -> None:  # fmt: skip
+    """Raise the weight of every row left short by its area over the mean area (money[4]:
+    1 / mean area; 1 each where rows have no area)."""
     for t in range(count[1]):
         r = short[t]
+        lift = area[r] * money[4]
         for p in range(rp[r], rp[r + 1]):
-            score[ri[p]] += _contrib(cov[r], rd[p], 1.0, x[ri[p]])
-        w[r] += 1.0
+            score[ri[p]] += _contrib(cov[r], rd[p], lift, x[ri[p]])
+        w[r] += lift
 
 
 @inline
@@ -219,9 +227,14 @@ def search(
     patience: int = 10**12,
     seed: int = 0,
     stop: Callable[[], bool] | None = None,
+    area: np.ndarray | None = None,
+    budget: float = 0.0,
 ) -> tuple[np.ndarray, float | None]:
     """((K',) sorted cover of A (M, N) costing <= that of the cover `selected` (K,), the
     time.perf_counter() by which the walk found it: None when the walk held no cover).
+
+    With `area` (M,) > 0 (mm²) a cover is a partial one: the rows it leaves short weigh at
+    most `budget` (mm²) in all. Without, every row must be met.
 
     Runs until time.perf_counter() passes `deadline`, `stop()` says so (asked every CHUNK_S),
     the cost reaches `target` or `patience` steps in a row find no cheaper cover; stopped by
@@ -234,11 +247,14 @@ def search(
     if m == 0 or n == 0:
         return start, None
     need = 1.0 - 1e-9 if integral_costs(c) else 1e-9 * max(1.0, float(c[selected].sum()))
-    model = _model(A, c)
-    S = _start(selected, model, seed)
+    if area is None:
+        area, budget = np.ones(m), 0.5
+    model = _model(A, c, np.asarray(area, dtype=np.float64))
+    S = _start(selected, model, seed, budget)
     steps, found_at = 64, None
     while time.perf_counter() < deadline and not (stop is not None and stop()):
         t, best_step = time.perf_counter(), S.count[4]
+        S.money[2] = model[-1][S.short[: S.count[1]]].sum()  # no drift from the running sum
         done = _walk(steps, need, float(target), patience, *model, *_fields(S))
         if S.count[4] != best_step:
             found_at = time.perf_counter()
@@ -288,27 +304,34 @@ def _fields(S: _State, best: bool = True) -> tuple[Arr, ...]:
     return (*head, S.best, S.count, S.money) if best else (*head, S.count, S.money)
 
 
-def _model(A: sp.csr_array, costs: Arr) -> tuple[Arr, ...]:
-    """A (M, N) for the kernels: CSC and CSR arrays (int64 indices), costs (N,), row maxima (M,)."""
+def _model(A: sp.csr_array, costs: Arr, area: Arr | None = None) -> tuple[Arr, ...]:
+    """A (M, N) for the kernels: CSC and CSR arrays (int64 indices), costs (N,), row maxima
+    (M,), row areas (M,) (None: 1 each)."""
     csc, i64 = sp.csc_array(A), np.int64
     rowmax = A.max(axis=1).toarray().ravel()  # entries are > 0: an empty row's max is 0
+    area = np.ones(A.shape[0]) if area is None else area
     return (csc.indptr.astype(i64), csc.indices.astype(i64), csc.data, A.indptr.astype(i64),
-            A.indices.astype(i64), A.data, costs, rowmax)  # fmt: skip
+            A.indices.astype(i64), A.data, costs, rowmax, area)  # fmt: skip
 
 
-def _start(selected: Arr, model: tuple[Arr, ...], seed: int) -> _State:
-    """The walk's state at the empty selection, then with the cover `selected` (K,) added."""
-    cp, ci, cd = model[:3]
+def _start(selected: Arr, model: tuple[Arr, ...], seed: int, budget: float = 0.5) -> _State:
+    """The walk's state at the empty selection, then with the cover `selected` (K,) added;
+    a selection is a cover when its short rows' area is at most `budget`."""
+    cp, ci, cd, area = *model[:3], model[-1]
     m, n = model[3].size - 1, cp.size - 1
-    gain = np.bincount(np.repeat(np.arange(n), np.diff(cp)), np.where(cd >= _MET, 1.0, cd), n)
+    scale = 1.0 / float(area.mean()) if m else 1.0
+    w = area * scale  # a row's weight starts at its area over the mean area
+    gain = np.bincount(
+        np.repeat(np.arange(n), np.diff(cp)), np.where(cd >= _MET, 1.0, cd) * w[ci], n
+    )
     S = _State(
         x=np.zeros(n, dtype=np.bool_), sel=np.zeros(n, dtype=np.int64),
-        where=np.full(n, -1, dtype=np.int64), cov=np.zeros(m), w=np.ones(m),
+        where=np.full(n, -1, dtype=np.int64), cov=np.zeros(m), w=w,
         score=gain.astype(np.float64),
         stamp=np.zeros(n, dtype=np.int64), canadd=np.ones(n, dtype=np.bool_),
         short=np.arange(m, dtype=np.int64), spot=np.arange(m, dtype=np.int64),
         best=np.zeros(n, dtype=np.bool_), count=np.array([0, m, 0, -1, 0], dtype=np.int64),
-        money=np.array([0.0, np.inf]),
+        money=np.array([0.0, np.inf, float(area.sum()), budget, scale]),
     )  # fmt: skip
     _seed(seed)
     for j in np.asarray(selected, dtype=np.int64):

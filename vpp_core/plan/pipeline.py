@@ -267,7 +267,7 @@ def plan(
     cell = cell_of(request, cell)
     split = elements_of(part, request)
     backend = setup_backend(part, request, cell)  # candidates see the faces
-    tracer = setup_backend(split.part, request, cell) if split else backend
+    tracer = tracer_of(split, request, cell, backend)
     check_request(request, limits, cell)
     # stage `compiling` while numba compiles, on a fresh install; it counts in the budget
     clock.timings.compiling = round(warm(request.backend, progress), 4)
@@ -515,6 +515,14 @@ def elements_of(part: Part, request: PlanRequest) -> Elements | None:
         return None
     split = _elements(part, element_area(part, request.target.resolution_mm))
     return split if len(split.parent) > part.n_faces else None
+
+
+def tracer_of(
+    split: Elements | None, request: PlanRequest, cell: Cell | None, backend: RayBackend
+) -> RayBackend:
+    """The backend the trace casts into: over the elements `split` (and the setup's floor and
+    fixtures) where the rows are made of them, else `backend`, the faces'."""
+    return setup_backend(split.part, request, cell) if split else backend
 
 
 def element_area(part: Part, resolution_mm: float) -> float:

@@ -44,6 +44,7 @@ from vpp_core.plan.pipeline import (
     rows_of,
     solve,
     targets_of,
+    tracer_of,
 )
 from vpp_core.plan.regions import FaceTargets
 from vpp_core.plan.regionsdoc import region_members
@@ -231,7 +232,7 @@ def resolution_sweep(
             split = elements_of(part, req)
             key = split.max_area_mm2 if split else None
             if key not in solvers:
-                tracer = setup_backend(split.part, request, cell) if split else backend
+                tracer = tracer_of(split, request, cell, backend)
                 trace = trace_counts(
                     part, request.sensor, views, backend=tracer, threads=threads, elements=split
                 )
@@ -286,7 +287,7 @@ def decimation_study(
         backend = setup_backend(planning, request, cell)
         views, info = candidates_for(planning, plain, backend, cell)
         check_limits(len(views), request.sensor.n_pixels, limits)
-        tracer = setup_backend(split.part, request, cell) if split else backend
+        tracer = tracer_of(split, request, cell, backend)
         trace = trace_counts(
             planning, request.sensor, views, backend=tracer, threads=threads, elements=split
         )

@@ -248,10 +248,12 @@ def _milp(
                 if threads != 1:
                     best, found = _walk(g, c, start, required, deadline, bound, run.ready)
                 h = run.answer()
-        if h.x is not None:
-            mip = np.flatnonzero(h.x[: g.A.shape[1]] > 0.5)
-            if _reaches(g.A, mip, g.w, required) and c[mip].sum() < c[best].sum():
+        mip = None if h.x is None else np.flatnonzero(h.x[: g.A.shape[1]] > 0.5)
+        if mip is not None and _reaches(g.A, mip, g.w, required):
+            if c[mip].sum() < c[best].sum():
                 best, found = prune_partial(g.A, mip, c, g.w, required), time.perf_counter()
+            elif c[mip].sum() == c[best].sum():  # a tie: HiGHS's cover, which does not depend
+                best = prune_partial(g.A, mip, c, g.w, required)  # on how far the search got
         dual = h.dual_bound if np.isfinite(h.dual_bound) else 0.0
         if not closes_gap(dual, c[best].sum(), integral)[1]:  # the LP may still close it
             dual = max(dual, relaxation.bound(deadline + GRACE_S - time.perf_counter()))

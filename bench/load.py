@@ -238,17 +238,23 @@ def wait_jobs(base: str, jobs: set[str], timeout: float = WAIT_JOBS_S) -> Counte
     return final
 
 
-def job_runs(log: Path, kind: str, jobs: set[str]) -> dict[str, list[float]]:
+def job_runs(log: Path, kind: str, jobs: set[str], wait_s: float = 10.0) -> dict[str, list[float]]:
     """The run times (s) of each job of `kind` (plan, study, cloud), from RQ's log lines
-    `Successfully completed <kind> <id[:12]> job in H:MM:SS.ffffff`."""
-    text = log.read_text(errors="replace") if log.exists() else ""
+    `Successfully completed <kind> <id[:12]> job in H:MM:SS.ffffff`, read once every job has
+    one or `wait_s` s have passed: RQ writes that line after it has marked the job finished,
+    so a job can read as succeeded before its line is in the log."""
     pattern = rf"Successfully completed {kind} ([0-9a-f]{{12}}) job in (\d+):(\d+):([\d.]+)s"
     by_prefix = {job[:12]: job for job in jobs}
-    runs: dict[str, list[float]] = {job: [] for job in jobs}
-    for prefix, h, m, sec in re.findall(pattern, text):
-        if prefix in by_prefix:
-            runs[by_prefix[prefix]].append(int(h) * 3600 + int(m) * 60 + float(sec))
-    return runs
+    deadline = time.monotonic() + wait_s
+    while True:
+        text = log.read_text(errors="replace") if log.exists() else ""
+        runs: dict[str, list[float]] = {job: [] for job in jobs}
+        for prefix, h, m, sec in re.findall(pattern, text):
+            if prefix in by_prefix:
+                runs[by_prefix[prefix]].append(int(h) * 3600 + int(m) * 60 + float(sec))
+        if all(runs.values()) or time.monotonic() >= deadline:
+            return runs
+        time.sleep(0.1)
 
 
 def computed(runs: list[float]) -> int:
@@ -328,7 +334,6 @@ def main(argv: list[str] | None = None) -> int:
                 )  # fmt: skip
             )
             statuses = wait_jobs(base, tally.plans)
-            time.sleep(1.0)  # the workers' last log lines
             runs = job_runs(tmp / "workers.log", "plan", tally.plans)
     finally:
         stop_workers(procs, wait_s=5)

@@ -7,6 +7,7 @@ import asyncio
 import importlib.util
 import os
 import sys
+import threading
 
 import httpx
 import pytest
@@ -51,3 +52,14 @@ def test_the_load_only_targets_loopback() -> None:
         asyncio.run(load.drive("http://example.org:80", "0" * 64, duration=0.1))
     with pytest.raises(SystemExit, match="loopback"):
         load.check_loopback_redis("redis://10.0.0.1:6379/8")
+
+
+def test_job_runs_waits_for_the_line_rq_writes_after_the_status(tmp_path) -> None:
+    # RQ marks a job finished, then logs "Successfully completed": a job polled as succeeded
+    # may not have its line yet (a fresh-clone run counted a plan computed 0 times)
+    load, log, job = bench_load(), tmp_path / "workers.log", "ab" * 32
+    log.write_text("")
+    line = f"Successfully completed plan {job[:12]} job in 0:00:01.500000s on worker w1\n"
+    threading.Timer(0.3, log.write_text, args=(line,)).start()
+    assert load.job_runs(log, "plan", {job}, wait_s=0.0) == {job: []}
+    assert load.job_runs(log, "plan", {job}, wait_s=10.0) == {job: [1.5]}

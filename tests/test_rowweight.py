@@ -56,7 +56,7 @@ def test_incremental_scores_equal_a_recount(real: bool, partial: bool) -> None:
     area = np.random.default_rng(3).random(60) + 0.1 if partial else None
     model = rowweight._model(A, costs, area)
     assert np.array_equal(model[-2], dense.max(axis=1))
-    budget = 0.1 * area.sum() if partial else 0.5
+    budget = 0.1 * area.sum() if partial else rowweight.EVERY_ROW
     S = rowweight._start(greedy_cover(A, costs), model, 0, budget)
     f = np.vectorize(lambda c: 1.0 if c >= 1.0 - BUILD_TOL else c)
     for _ in range(5):

@@ -37,6 +37,8 @@ Arr = np.ndarray
 CHUNK_S = 0.05
 """Seconds between two looks at the clock (the step count per call adapts to it)."""
 _MET = 1.0 - BUILD_TOL
+EVERY_ROW = 0.5
+"""The budget of short-row area that asks for every row to be met, rows weighing 1 each."""
 
 
 @inline
@@ -247,10 +249,8 @@ def search(
     if m == 0 or n == 0:
         return start, None
     need = 1.0 - 1e-9 if integral_costs(c) else 1e-9 * max(1.0, float(c[selected].sum()))
-    if area is None:
-        area, budget = np.ones(m), 0.5
-    model = _model(A, c, np.asarray(area, dtype=np.float64))
-    S = _start(selected, model, seed, budget)
+    model = _model(A, c, area)
+    S = _start(selected, model, seed, EVERY_ROW if area is None else budget)
     steps, found_at = 64, None
     while time.perf_counter() < deadline and not (stop is not None and stop()):
         t, best_step = time.perf_counter(), S.count[4]
@@ -309,12 +309,12 @@ def _model(A: sp.csr_array, costs: Arr, area: Arr | None = None) -> tuple[Arr, .
     (M,), row areas (M,) (None: 1 each)."""
     csc, i64 = sp.csc_array(A), np.int64
     rowmax = A.max(axis=1).toarray().ravel()  # entries are > 0: an empty row's max is 0
-    area = np.ones(A.shape[0]) if area is None else area
+    area = np.ones(A.shape[0]) if area is None else np.asarray(area, dtype=np.float64)
     return (csc.indptr.astype(i64), csc.indices.astype(i64), csc.data, A.indptr.astype(i64),
             A.indices.astype(i64), A.data, costs, rowmax, area)  # fmt: skip
 
 
-def _start(selected: Arr, model: tuple[Arr, ...], seed: int, budget: float = 0.5) -> _State:
+def _start(selected: Arr, model: tuple[Arr, ...], seed: int, budget: float = EVERY_ROW) -> _State:
     """The walk's state at the empty selection, then with the cover `selected` (K,) added;
     a selection is a cover when its short rows' area is at most `budget`."""
     cp, ci, cd, area = *model[:3], model[-1]

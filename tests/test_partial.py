@@ -252,6 +252,28 @@ def test_the_search_beside_the_mip_finds_the_optimum_the_greedy_misses(monkeypat
     assert out.achieved == pytest.approx(w[out.satisfied].sum())
 
 
+@pytest.mark.parametrize("seed", [1, 3, 9, 26])
+def test_with_one_thread_the_search_runs_first_and_highs_starts_from_its_cover(monkeypatch, seed):
+    # one core: the search has its share of the time alone, then HiGHS (answering nothing
+    # here) is started from the search's cover, not from the greedy one
+    rng = np.random.default_rng(seed)
+    A = random_model(rng, 60, 16, binary=seed % 2 == 0)
+    w = rng.random(60)
+    optimum = brute_partial(A.toarray(), w, 0.95, np.ones(16))
+    starts = []
+    fake = lambda model, start, *a, **k: starts.append(start) or Unheard(True)  # noqa: E731
+    monkeypatch.setattr("vpp_core.cover.partial.submit", fake)
+    out = solve_partial(A, w, 0.95, time_limit=3.0, threads=1)
+    assert out.result.objective == optimum and out.achieved >= out.required - 1e-9
+    g = _merged(A, w, np.ones(16))
+    if starts:  # not started when the search met the LP bound
+        x = starts[0][: g.A.shape[1]]
+        assert x.sum() == optimum
+        assert w[satisfied_rows(A, g.cols[np.flatnonzero(x)])].sum() >= 0.95 * w.sum() - 1e-9
+    else:
+        assert out.result.status == "optimal"
+
+
 def test_a_process_ends_cleanly_after_a_cancelled_relaxation():
     # cancelled before its first iteration, HiGHS's thread ran on, and the process aborted
     # at exit ("terminate called without an active exception", exit status 134)

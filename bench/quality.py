@@ -89,7 +89,10 @@ def run_setting(
         "met_area": round(m["resolution"]["met_area"], 4),
         "patch_sampled": rows.get("sampled_area"),
         "patch_met": rows.get("met_area"),
-        "rounds": [(r["candidates"], r["views"], r["added"]) for r in doc.get("adaptive", [])],
+        "rounds": [
+            (r["candidates"], r["views"], r["added"] - r.get("removed", 0))
+            for r in doc.get("adaptive", [])
+        ],
     }
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import os
+import time
 import uuid
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -164,15 +165,31 @@ def start_workers(svc_env: dict[str, str], tmp_path: Path) -> Iterator[Any]:
     log_path = tmp_path / "workers.log"
     with log_path.open("ab") as log:
 
-        def run(n: int = 1, burst: bool = False) -> list[Any]:
+        def run(n: int = 1, burst: bool = False, ready: bool = False) -> list[Any]:
+            """n more workers; with `ready`, once every worker started listens on the queue
+            (a test of how jobs are shared out must not begin with one of them still starting)."""
             url = svc_env["VPP_REDIS_URL"]
             new = start(url, n, threads=1, burst=burst, prefix="test", log=log)
             procs.extend(new)
+            if ready:
+                listening(url, svc_env["VPP_QUEUE"], len(procs))
             return new
 
         yield run
         stop_workers(procs, wait_s=5)
     print(log_path.read_text(errors="replace")[-5000:])
+
+
+def listening(url: str, queue: str, n: int, timeout_s: float = 60.0) -> None:
+    """Until `n` RQ workers listen on `queue` at Redis `url`."""
+    from redis import Redis
+    from rq import Queue, Worker
+
+    with Redis.from_url(url) as conn:
+        deadline = time.monotonic() + timeout_s
+        while len(Worker.all(queue=Queue(queue, connection=conn))) < n:
+            assert time.monotonic() < deadline, f"fewer than {n} workers listen on {queue}"
+            time.sleep(0.05)
 
 
 S3_BUCKET = "vpp-test"

@@ -334,16 +334,6 @@ def computations(log: Path, kind: str, job: str) -> int:
     return sum(1 for t in times if t >= NOOP_S)
 
 
-def wait_workers(redis_db, n: int) -> None:
-    from rq import Queue, Worker
-
-    queue = Queue(os.environ["VPP_QUEUE"], connection=redis_db)
-    deadline = time.monotonic() + 60
-    while len(Worker.all(queue=queue)) < n:
-        assert time.monotonic() < deadline, "workers did not register"
-        time.sleep(0.05)
-
-
 def post_all(base: str, path: str, body: dict | None) -> tuple[str, list[str]]:
     """POST `body` to `path` from CLIENTS clients at once: the one id, the statuses it had."""
     answers = at_once(base, CLIENTS, lambda c, i: c.post(path, json=body))
@@ -367,8 +357,7 @@ def test_50_identical_requests_at_once_are_computed_once(
         f"{mesh_id}.json",
         f"{mesh_id}.npz",
     ]
-    start_workers(2)
-    wait_workers(redis_db, 2)
+    start_workers(2, ready=True)
     log = tmp_path / "workers.log"
     body = {**plan_body(mesh_id), "candidates": {"count": 40}}
     plan, statuses = post_all(base, "/v1/plans", body)

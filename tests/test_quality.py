@@ -146,26 +146,60 @@ def test_view_sphere_directions_are_even_and_look_at_the_part():
     assert np.allclose(np.einsum("ij,ij->i", to_centre, views.gazes), 1)
 
 
+def bushing_request(time_limit_s: float, adaptive: bool = True) -> PlanRequest:
+    """A plan of the sample bushing under SMALL at 1.2 mm from 30 candidates (seed 2)."""
+    return PlanRequest(
+        sensor=SMALL,
+        target=Target(resolution_mm=1.2),
+        candidates=CandidateGenerator(count=30, seed=2, adaptive=adaptive),
+        solver=SolverSettings(time_limit_s=time_limit_s),
+    )
+
+
 def test_adaptive_rounds_add_traced_candidates_and_are_reported():
     from vpp_core.plan.pipeline import plan
 
     part = load_mesh(sample_stl(), "stl")
-    request = PlanRequest(
-        sensor=SMALL,
-        target=Target(resolution_mm=1.2),
-        candidates=CandidateGenerator(count=30, seed=2),
-        solver=SolverSettings(time_limit_s=2),
-    )
+    request = bushing_request(2)
     doc = plan(part, request)
     info = doc.candidate_info
     assert doc.adaptive and doc.adaptive[0].candidates == info.generated
     assert len(doc.candidates) == info.generated + info.added
-    assert info.added == sum(r.added for r in doc.adaptive)
+    assert info.added == sum(r.added - r.removed for r in doc.adaptive)
     for before, after in zip(doc.adaptive, doc.adaptive[1:], strict=False):
         assert after.candidates == before.candidates + before.added
     fixed = CandidateGenerator(count=30, seed=2, adaptive=False)
     off = plan(part, PlanRequest(**{**request.model_dump(), "candidates": fixed.model_dump()}))
     assert not off.adaptive and len(off.candidates) == info.generated
+
+
+def test_a_round_whose_candidates_do_not_lower_the_quick_count_is_undone(monkeypatch):
+    # new candidates can raise what a patch asks for (its best candidate's share), so a grown
+    # pool can need more views: a round that does not lower the count is taken back. The
+    # quick covers' counts are scripted (10, 9, 12 views); the rest of the plan is real
+    from dataclasses import replace
+
+    from vpp_core.plan import pipeline
+
+    real, pools, views = pipeline.solve, [], iter([10, 9, 12])
+
+    def scripted(model, target, settings, *args, **kwargs):
+        out = real(model, target, settings, *args, **kwargs)
+        if settings.name != "greedy":
+            return out
+        pools.append(model.matrix.shape[1])
+        return replace(out, result=replace(out.result, selected=np.arange(next(views))))
+
+    monkeypatch.setattr(pipeline, "solve", scripted)
+    part = load_mesh(sample_stl(), "stl")
+    request = bushing_request(30)
+    doc = pipeline.plan(part, request)
+    first, second, third = doc.adaptive
+    assert first.added > 0 and second.added > 0 and third.added == 0
+    assert third.removed == second.added and third.candidates == pools[2]
+    assert doc.candidate_info.added == first.added
+    assert len(doc.candidates) == doc.candidate_info.generated + first.added == pools[1]
+    assert doc.viewpoints and max(v.id for v in doc.viewpoints) < pools[1]
 
 
 def test_the_time_limit_is_the_whole_plans_budget(monkeypatch):
@@ -184,12 +218,7 @@ def test_the_time_limit_is_the_whole_plans_budget(monkeypatch):
 
     monkeypatch.setattr(pipeline, "solve", spy)
     budget = 20.0
-    request = PlanRequest(
-        sensor=SMALL,
-        target=Target(resolution_mm=1.2),
-        candidates=CandidateGenerator(count=30, seed=2, adaptive=False),
-        solver=SolverSettings(time_limit_s=budget),
-    )
+    request = bushing_request(budget, adaptive=False)
     monkeypatch.setattr(pipeline, "warm", lambda *args: 3.0)  # seconds compiling, said
     doc = pipeline.plan(part, request, load_s=7.0)
     monkeypatch.setattr(pipeline, "warm", lambda *args: 0.0)

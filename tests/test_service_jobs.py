@@ -62,8 +62,8 @@ def test_plan_matches_in_process_planner_and_two_workers_share_chunks(api, start
         "candidates": {"count": 80, "seed": 3},
         "target": {"resolution_mm": 0.3},
     }
+    start_workers(2, ready=True)  # both listen before the chunks are queued
     job = submit(api, body)
-    start_workers(2)
     done = wait(api, job)
     assert done["status"] == "succeeded", done
     assert done["result_url"] == f"/v1/plans/{job}"

@@ -318,7 +318,20 @@ def in_cylinder(p: np.ndarray, centre: list[float], r: float, z0: float, z1: flo
 
 
 @pytest.mark.parametrize("workspace", ["box", "cylinder"])
-def test_workspace_and_keep_out_hold_for_every_camera_adaptive_too(workspace: str) -> None:
+def test_workspace_and_keep_out_hold_for_every_camera_adaptive_too(
+    workspace: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from vpp_core.plan import adaptive
+
+    aimed: list[np.ndarray] = []  # every adaptive camera, kept in the pool or taken back
+    real = adaptive.aimed_views
+
+    def spy(*args: Any, **kwargs: Any) -> Any:
+        views = real(*args, **kwargs)
+        aimed.append(views.positions)
+        return views
+
+    monkeypatch.setattr(adaptive, "aimed_views", spy)
     mesh = trimesh.util.concatenate(
         [box_mesh([60, 40, 10], [0, 0, 5]), box_mesh([20, 20, 30], [10, 0, 25])]
     )
@@ -346,8 +359,9 @@ def test_workspace_and_keep_out_hold_for_every_camera_adaptive_too(workspace: st
         }
     )
     doc = plan(part, req)
-    assert doc.candidate_info.added > 0  # the adaptive rounds placed cameras too
-    cams = apply(rigid((0, 0, 0), shift), [c.position for c in doc.candidates])
+    assert sum(map(len, aimed)) > 0  # the adaptive rounds placed cameras too
+    own = np.vstack([[c.position for c in doc.candidates], *aimed])
+    cams = apply(rigid((0, 0, 0), shift), own.tolist())
     assert cams[:, 2].min() >= 40 - 1e-9
     if workspace == "box":
         assert ((cams >= [-150, -200, 50]) & (cams <= [550, 400, 700])).all()

@@ -6,8 +6,12 @@ selected view, and rows that at most FEW_CANDIDATES candidates sample — become
 gets cameras at the stand-off looking back at its centre, along its normal and tilted up to
 AIM_TILT_DEG, placed and checked as the generator places its own (vpp_core.candidates). Only
 the new candidates are traced (R grows by columns); the round repeats while it adds
-candidates and the quick count improves, at most ROUNDS times. The final cover is solved on
-the whole pool by the pipeline, and the document lists every round.
+candidates and the quick count improves, at most ROUNDS times. A round whose candidates did
+not lower the quick count is taken back: a patch asks for what its best candidate samples of
+it (vpp_core.cover.density), so candidates aimed at a patch can make it ask for more, and
+the counter's plan kept 160 that raised its quick count from 70 to 90 and its final count
+from 65 to 78–80 with the same area met (docs/quality.md). The final cover is solved on the
+pool kept by the pipeline, and the document lists every round.
 """
 
 from __future__ import annotations
@@ -87,6 +91,7 @@ def adapt(
         return Pool(views, trace, [])
     rounds: list[AdaptiveRound] = []
     quick = QUICK_SHARE * request.solver.time_limit_s
+    before = views, trace  # the pool before the last round's candidates
     for k in range(ROUNDS):
         start = time.perf_counter()
         if start >= deadline:
@@ -95,7 +100,9 @@ def adapt(
         cover = solve(model, quick)
         count = len(cover.result.selected)
         if rounds and count >= rounds[-1].views:
-            rounds.append(_round(k, 0, len(views), cover, start))
+            removed = rounds[-1].added  # the last round's candidates did not help: undone
+            views, trace = before
+            rounds.append(_round(k, 0, len(views) + removed, cover, start, removed))
             break
         new = aimed_views(
             part, request, views, model, cover, backend, seed=spec.seed + k, allowed=allowed
@@ -105,12 +112,15 @@ def adapt(
         if not len(new):
             break
         added = trace_of(new)
+        before = views, trace
         trace = join_traces([trace, added], trace.seconds + added.seconds)
         views = _concat(views, new)
     return Pool(views, trace, rounds)
 
 
-def _round(k: int, added: int, pool: int, cover: PartialCover, start: float) -> AdaptiveRound:
+def _round(
+    k: int, added: int, pool: int, cover: PartialCover, start: float, removed: int = 0
+) -> AdaptiveRound:
     """The document's record of one round."""
     r = cover.result
     return AdaptiveRound(
@@ -120,6 +130,7 @@ def _round(k: int, added: int, pool: int, cover: PartialCover, start: float) -> 
         bound=r.bound,
         status=r.status,
         added=added,
+        removed=removed,
         seconds=round(time.perf_counter() - start, 3),
     )
 

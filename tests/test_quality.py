@@ -173,15 +173,16 @@ def test_adaptive_rounds_add_traced_candidates_and_are_reported():
     assert not off.adaptive and len(off.candidates) == info.generated
 
 
-def test_a_round_whose_candidates_do_not_lower_the_quick_count_is_undone(monkeypatch):
+@pytest.mark.parametrize("last", [12, 9])
+def test_a_round_whose_candidates_raise_the_quick_count_is_undone(monkeypatch, last):
     # new candidates can raise what a patch asks for (its best candidate's share), so a grown
-    # pool can need more views: a round that does not lower the count is taken back. The
-    # quick covers' counts are scripted (10, 9, 12 views); the rest of the plan is real
+    # pool can need more views: a round that raises the count is taken back, one that leaves
+    # it (10, 9, 9) is kept. The quick covers' counts are scripted; the rest of the plan is real
     from dataclasses import replace
 
     from vpp_core.plan import pipeline
 
-    real, pools, views = pipeline.solve, [], iter([10, 9, 12])
+    real, pools, views = pipeline.solve, [], iter([10, 9, last])
 
     def scripted(model, target, settings, *args, **kwargs):
         out = real(model, target, settings, *args, **kwargs)
@@ -191,15 +192,15 @@ def test_a_round_whose_candidates_do_not_lower_the_quick_count_is_undone(monkeyp
         return replace(out, result=replace(out.result, selected=np.arange(next(views))))
 
     monkeypatch.setattr(pipeline, "solve", scripted)
-    part = load_mesh(sample_stl(), "stl")
-    request = bushing_request(30)
-    doc = pipeline.plan(part, request)
+    doc = pipeline.plan(load_mesh(sample_stl(), "stl"), bushing_request(30))
     first, second, third = doc.adaptive
     assert first.added > 0 and second.added > 0 and third.added == 0
-    assert third.removed == second.added and third.candidates == pools[2]
-    assert doc.candidate_info.added == first.added
-    assert len(doc.candidates) == doc.candidate_info.generated + first.added == pools[1]
-    assert doc.viewpoints and max(v.id for v in doc.viewpoints) < pools[1]
+    assert third.candidates == pools[2] == pools[1] + second.added
+    kept = pools[1] if last > 9 else pools[2]
+    assert third.removed == (second.added if last > 9 else 0)
+    assert doc.candidate_info.added == kept - doc.candidate_info.generated
+    assert len(doc.candidates) == kept
+    assert doc.viewpoints and max(v.id for v in doc.viewpoints) < kept
 
 
 def test_the_time_limit_is_the_whole_plans_budget(monkeypatch):

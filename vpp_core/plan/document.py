@@ -291,8 +291,8 @@ class AdaptiveRound(BaseModel):
     """Candidates aimed at this cover's forcing rows and added to the pool."""
     removed: int = 0
     """The previous round's candidates taken out of the pool again: with them this quick cover
-    needed no fewer views than the previous one (a patch asks for its best candidate's
-    share, so candidates can make it ask for more)."""
+    needed more views than the previous one (a patch asks for its best candidate's share, so
+    candidates can make it ask for more)."""
     seconds: float
 
 

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import asyncio
 import importlib.util
-import os
 import sys
 import threading
 
@@ -31,8 +30,7 @@ def test_a_short_mixed_load_gets_no_5xx_and_computes_each_plan_once(
     live_api, start_workers, redis_db, tmp_path
 ) -> None:
     load = bench_load()
-    start_workers(2)
-    load.svc.wait_workers(redis_db, os.environ["VPP_QUEUE"], 2)
+    start_workers(2, ready=True)
     r = httpx.post(f"{live_api}/v1/meshes", files={"file": ("b.stl", sample_stl())}, timeout=60)
     tally = asyncio.run(load.drive(live_api, r.json()["id"], clients=20, duration=3, distinct=4))
     lines = {x["endpoint"]: x for x in tally.lines()}

@@ -102,11 +102,11 @@ def adapt(
         cover = solve(model, quick)
         count = len(cover.result.selected)
         if rounds and count >= rounds[-1].views:
-            removed = 0
-            if count > rounds[-1].views:  # the last round's candidates made it worse: undone
-                removed = rounds[-1].added
+            worse = count > rounds[-1].views  # the last round's candidates raised it: undone
+            removed = rounds[-1].added if worse else 0
+            rounds.append(_round(k, 0, len(views), cover, start, removed))
+            if worse:
                 views, trace = before
-            rounds.append(_round(k, 0, len(views) + removed, cover, start, removed))
             break
         new = aimed_views(
             part, request, views, model, cover, backend, seed=spec.seed + k, allowed=allowed

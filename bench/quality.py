@@ -2,7 +2,7 @@
 the view-sphere baseline; one JSON line per (mesh, formulation, setting).
 
     python bench/quality.py [MESH...] [--formulations density visibility]
-                            [--settings default paper tilt best] [--time-limit 60]
+                            [--settings default paper tilt best open4] [--time-limit 60]
                             [--sphere 1000] [--elements 1] [--out DIR]
 
 Every setting runs `vpp plan MESH --units U ... -q -o DIR/<name>.json` as a child process (the
@@ -16,7 +16,8 @@ The settings:
 - `default`: nothing but --units (and --formulation);
 - `paper`: --profile paper (the previous default: gazes along the normal at 500 mm, face rows);
 - `tilt`: --profile paper --tilt 30 --min-coverage 0.999 (the flags docs/cad-meshes.md named);
-- `best`: the same with --candidates 2000.
+- `best`: the same with --candidates 2000;
+- `open4`: --open-min 4 (recessed patches weigh nothing in the partial cover).
 
 `element` figures come on lines of their own after every plan, `sphere` lines last: Linux
 keeps a parent's peak RSS in the `ru_maxrss` of the children it forks, so tracing in this
@@ -62,6 +63,7 @@ SETTINGS = {
     "tilt": ["--profile", "paper", "--tilt", "30", "--min-coverage", "0.999"],
     "best": ["--profile", "paper", "--tilt", "30", "--min-coverage", "0.999"]
     + ["--candidates", "2000"],
+    "open4": ["--open-min", "4"],
 }
 
 
@@ -89,6 +91,7 @@ def run_setting(
         "met_area": round(m["resolution"]["met_area"], 4),
         "patch_sampled": rows.get("sampled_area"),
         "patch_met": rows.get("met_area"),
+        "recessed": rows.get("recessed_area"),
         "rounds": [
             (r["candidates"], r["views"], r["added"] - r.get("removed", 0))
             for r in doc.get("adaptive", [])

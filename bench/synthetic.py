@@ -1,13 +1,16 @@
 """Parts like the unseen ones of issue 33, made here (none of them is in ../shared/meshes):
 a crankshaft as CAD exports it and isotropically remeshed, a 36-tooth Hirth coupling coarse
-(planar flanks, one triangle strip each) and finely tessellated. All in mm.
+(planar flanks, one triangle strip each) and finely tessellated, and a gearbox assembly whose
+gears are hidden in a housing and tessellated far below a pixel's footprint. All in mm.
 
     python bench/synthetic.py OUTDIR      # writes crankshaft_cad.stl, crankshaft_fine.stl,
-                                          # hirth36_coarse.stl, hirth36_fine.stl
+                                          # hirth36_coarse.stl, hirth36_fine.stl, gearbox.stl,
+                                          # gearbox_window.stl
 
-The crankshaft needs manifold3d (`pip install manifold3d`, a bench-only dependency); the
-coupling is built from numpy alone. The fine versions are pymeshlab isotropic remeshes of the
-coarse ones (what `vpp plan --remesh` does), so both tessellations are the same geometry.
+The crankshaft and the gearbox need manifold3d (`pip install manifold3d`, a bench-only
+dependency); the coupling is built from numpy alone. The fine versions are pymeshlab isotropic
+remeshes of the coarse ones (what `vpp plan --remesh` does), so both tessellations are the
+same geometry.
 """
 
 from __future__ import annotations
@@ -47,9 +50,7 @@ def crankshaft(segments: int = 64) -> trimesh.Trimesh:
             pin = m3.CrossSection.circle(30).translate([y, z])
             web = m3.CrossSection.batch_hull([main, pin]).extrude(18)
             parts.append(web.rotate([0, 90, 0]).translate([xw, 0, 0]))
-    solid = m3.Manifold.batch_boolean(parts, m3.OpType.Add)
-    mesh = solid.to_mesh()
-    return trimesh.Trimesh(np.asarray(mesh.vert_properties)[:, :3], np.asarray(mesh.tri_verts))
+    return _trimesh(m3.Manifold.batch_boolean(parts, m3.OpType.Add))
 
 
 def hirth(
@@ -83,6 +84,68 @@ def hirth(
     return mesh
 
 
+def _gear(teeth: int, module: float, width: float, bore: float) -> trimesh.Trimesh:
+    """A spur gear (mm) along z, `width` thick: trapezoid teeth between the root and tip
+    circles, a bore of diameter `bore`."""
+    import manifold3d as m3
+
+    r_pitch = module * teeth / 2
+    r_tip, r_root = r_pitch + module, r_pitch - 1.25 * module
+    step = 2 * np.pi / teeth
+    points = []
+    for k in range(teeth):
+        a = k * step
+        for frac, r in ((0.0, r_root), (0.1, r_root), (0.22, r_tip), (0.38, r_tip), (0.5, r_root)):
+            points.append((r * np.cos(a + frac * step), r * np.sin(a + frac * step)))
+        for frac in np.linspace(0.6, 0.9, 4):
+            points.append((r_root * np.cos(a + frac * step), r_root * np.sin(a + frac * step)))
+    body = m3.CrossSection([points]) - m3.CrossSection.circle(bore / 2)
+    return _trimesh(body.extrude(width).translate([0, 0, -width / 2]))
+
+
+def gearbox(window: bool = False, gear_edge_mm: float = 0.27) -> trimesh.Trimesh:
+    """A gearbox assembly (mm), separate bodies as an assembly exports them: a housing
+    160 x 80 x 110 with 6 mm walls and two bearing bores (1 mm clearance around the shafts),
+    with `window` a 60 x 40 inspection window in its lid; two shafts through the bores
+    carrying a 20- and a 34-tooth gear (module 1.6, 10 mm wide) inside, remeshed to
+    `gear_edge_mm` (0.27 mm: faces below the paper camera's pixel footprint, 0.183 mm
+    square); 8 hex bolts on the lid. About 366 k faces, most of them the gears'. Without
+    the window the gears and the housing's inside are hidden; with it part of them is seen
+    through it, a slice per view."""
+    import manifold3d as m3
+
+    m3.set_circular_segments(96)
+    box = m3.Manifold.cube([160, 80, 110], center=True)
+    cavity = m3.Manifold.cube([148, 68, 98], center=True)
+    holes = [m3.Manifold.cube([60, 40, 20], center=True).translate([0, 0, 50])] if window else []
+    centres = ((-21.6, 7.0, _gear(20, 1.6, 10, 14)), (21.6, 10.0, _gear(34, 1.6, 10, 20)))
+    axis = [90, 0, 0]  # cylinders along y
+    bores = [
+        m3.Manifold.cylinder(100, r + 1, r + 1, center=True).rotate(axis).translate([x, 0, 0])
+        for x, r, _ in centres
+    ]
+    bodies = [m3.Manifold.batch_boolean([box, cavity, *holes, *bores], m3.OpType.Subtract)]
+    for x, r, _ in centres:
+        shaft = m3.Manifold.cylinder(140, r, r, center=True).rotate(axis)
+        bodies.append(shaft.translate([x, 0, 0]))
+    for k in range(8):
+        x, y = -66 + (k // 2) * 44, (-32, 32)[k % 2]
+        bodies.append(m3.Manifold.cylinder(5, 5, 5, circular_segments=6).translate([x, y, 55]))
+    meshes = [_trimesh(body) for body in bodies]
+    for x, _, gear in centres:
+        gear = fine(gear, gear_edge_mm)
+        gear.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, [1, 0, 0]))
+        gear.apply_translation([x, 0, 0])
+        meshes.append(gear)
+    return trimesh.util.concatenate(meshes)
+
+
+def _trimesh(solid) -> trimesh.Trimesh:
+    """A manifold3d solid as a trimesh."""
+    mesh = solid.to_mesh()
+    return trimesh.Trimesh(np.asarray(mesh.vert_properties)[:, :3], np.asarray(mesh.tri_verts))
+
+
 def fine(mesh: trimesh.Trimesh, edge_mm: float) -> trimesh.Trimesh:
     """The same geometry isotropically remeshed to edges of about `edge_mm` (pymeshlab)."""
     from vpp_core.mesh.part import part_from_arrays
@@ -93,7 +156,7 @@ def fine(mesh: trimesh.Trimesh, edge_mm: float) -> trimesh.Trimesh:
 
 
 def main() -> None:
-    """Write the four parts into the folder given."""
+    """Write the five parts into the folder given."""
     out = Path(sys.argv[1])
     out.mkdir(parents=True, exist_ok=True)
     crank = crankshaft()
@@ -103,6 +166,8 @@ def main() -> None:
         "crankshaft_fine": fine(crank, 6.0),
         "hirth36_coarse": coupling,
         "hirth36_fine": fine(coupling, 0.5),
+        "gearbox": gearbox(),
+        "gearbox_window": gearbox(window=True),
     }
     for name, mesh in parts.items():
         mesh.export(out / f"{name}.stl")

@@ -19,6 +19,7 @@ from cli import STARTED
 from vpp_core.camera.sensor import make_sensor
 from vpp_core.cell.geometry import Cell, resolve
 from vpp_core.cell.setup import MeshShape
+from vpp_core.cover.access import DIRECTIONS
 from vpp_core.errors import VppError
 from vpp_core.mesh.part import UNITS_TO_MM, Part
 from vpp_core.mesh.tessellate import load_part
@@ -177,6 +178,15 @@ def _plan_options(p: argparse.ArgumentParser) -> None:
         type=float,
         help="cover this fraction of the coverable area (partial cover; what is left out is "
         "listed); default profile 0.999, paper 1 = all",
+    )
+    p.add_argument(
+        "--open-min",
+        type=int,
+        default=0,
+        metavar="K",
+        help=f"patch rows: a patch open along fewer than K of {DIRECTIONS} directions is "
+        "recessed (seen through a clearance or a slot) and weighs nothing in a partial cover; "
+        "default 0: none is; 4 keeps a closed housing's inside from driving the count",
     )
     cand = p.add_mutually_exclusive_group()
     cand.add_argument("--candidates", type=int, default=500, help="candidates to generate")
@@ -559,6 +569,7 @@ def _request(args: argparse.Namespace) -> PlanRequest:
                 formulation=args.formulation,
                 min_coverage=args.min_coverage,
                 rows=args.rows,
+                open_min=args.open_min,
             ),
             candidates=candidates,
             solver=SolverSettings(
@@ -757,13 +768,19 @@ def _partial_rows(doc: PlanDocument) -> list[tuple[str, str]]:
     p = doc.partial
     if p is None:
         return []
-    return [
+    out = [
         (
             f"partial cover (min {p.min_coverage:.2%})",
             f"{p.covered_fraction:.3%} of the coverable area; left out {p.left_out.faces} "
             f"faces ({p.left_out.area_mm2:.4g} mm²)",
         )
     ]
+    rows = doc.cover_rows
+    if rows is not None and rows.recessed_area:
+        r = rows.recessed
+        unmet = f"; {r.faces} faces ({r.area_mm2:.4g} mm²) of them unmet" if r else ""
+        out.append(("recessed (not counted)", f"{rows.recessed_area:.2%} of the area{unmet}"))
+    return out
 
 
 def _diagnostic_rows(doc: PlanDocument) -> list[tuple[str, str]]:

@@ -16,6 +16,7 @@ import trimesh
 from scipy.optimize import Bounds, LinearConstraint, milp
 
 from tests.pixelrays import camera_rays, valid_counts
+from tests.test_access import OPEN_MIN, independent_recessed
 from vpp_core.camera.sensor import Sensor
 from vpp_core.mesh.part import Part, part_from_arrays
 from vpp_core.plan.document import CandidateGenerator, PlanDocument, PlanRequest, Target
@@ -299,7 +300,7 @@ def test_partial_cover_claims_hold_independently(part, formulation, rows):
     target = {"resolution_mm": res, "formulation": formulation, "rows": rows}
     request = PlanRequest(
         sensor=SMALL,
-        target=Target(**target, min_coverage=fraction),  # type: ignore[arg-type]
+        target=Target(**target, min_coverage=fraction, open_min=OPEN_MIN),  # type: ignore[arg-type]
         candidates=CandidateGenerator(count=30, seed=3, adaptive=False),  # one pool for both
     )
     doc = PlanDocument.model_validate_json(plan(part, request).model_dump_json())
@@ -313,8 +314,9 @@ def test_partial_cover_claims_hold_independently(part, formulation, rows):
         rp, ap = patch_rows(re, geo.areas, geo.counted, doc.cover_rows.patch_of_face)
         c2w = [_c2w(c) for c in doc.candidates]
         share = pinhole_share(rp, ap, *patch_planes(geo, of), c2w, SMALL)
-        s, w = s_matrix(rp, ap, res, formulation, share), ap[rp.any(axis=1)]
         rows_of = np.flatnonzero(rp.any(axis=1))
+        recessed = independent_recessed(geo, of, SMALL.max_incidence_deg)  # weigh nothing
+        s, w = s_matrix(rp, ap, res, formulation, share), np.where(recessed, 0, ap)[rows_of]
         row_faces = [np.unique(parent[(of == p) & geo.counted]).tolist() for p in rows_of]
     chosen = [v.id for v in doc.viewpoints]
     met = s[:, chosen].sum(axis=1) >= 1 - 1e-9
@@ -323,7 +325,7 @@ def test_partial_cover_claims_hold_independently(part, formulation, rows):
     assert p.coverable_area_mm2 == pytest.approx(w.sum(), rel=1e-3)
     assert p.covered_area_mm2 == pytest.approx(w[met].sum(), rel=1e-3)
     assert p.covered_fraction >= fraction and w[met].sum() >= fraction * w.sum() * (1 - 1e-3)
-    left = sorted({f for k in np.flatnonzero(~met) for f in row_faces[k]})
+    left = sorted({f for k in np.flatnonzero(~met & (w > 0)) for f in row_faces[k]})
     assert sorted(p.left_out.ids) == left
     assert doc.solver.status == "optimal"
     assert doc.solver.objective == len(chosen) == partial_optimum(s, w, fraction)

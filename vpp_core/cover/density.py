@@ -52,11 +52,18 @@ class CoverModel:
     density_rows: np.ndarray  # (rows,) bool: row demands the target density (else visibility)
     uncoverable: np.ndarray  # (u,) int64 counted faces seen by no candidate
     areas: np.ndarray  # (K,) float64 mm²: what each pair's face brings to its row
+    recessed: np.ndarray | None = None  # (rows,) bool: recessed patches (vpp_core.cover.access)
 
     def row_areas(self) -> np.ndarray:
         """(rows,) mm²: the areas of each row's faces, summed."""
         rows = self.matrix.shape[0]
         return np.asarray(np.bincount(self.face_row, weights=self.areas, minlength=rows))
+
+    def row_weights(self) -> np.ndarray:
+        """(rows,) mm²: what each row weighs in a partial cover, its area, none for a recessed
+        row (vpp_core.cover.access)."""
+        area = self.row_areas()
+        return area if self.recessed is None else np.where(self.recessed, 0.0, area)
 
     def faces_of(self, rows: np.ndarray) -> np.ndarray:
         """Ascending distinct face ids of the given rows (ids or a (rows,) bool mask)."""
@@ -136,6 +143,7 @@ def cover_model(
     ignored: np.ndarray | None = None,
     cameras: Cameras | None = None,
     share: np.ndarray | None = None,
+    recessed: np.ndarray | None = None,
 ) -> CoverModel:
     """The covering rows for a target resolution r̄ (mm; one for all, or (M,) each face's own):
     S for `density`, V for `visibility`; per face, or per patch with each counted face taking
@@ -143,11 +151,18 @@ def cover_model(
     `ignored` (M,) faces get no row (ignored regions; patches hold counted faces only).
     On patches with the `cameras` of R's columns, S counts the share of each patch a view
     samples (module docstring); `share` (nnz,) gives it per entry of `counts` directly.
+    `recessed` (P,) bool marks the patches a partial cover gives no weight
+    (vpp_core.cover.access).
 
     Built on the seen rows' own sparsity pattern, one nnz-sized float array at a time (R of a
     309 k-face, 500-candidate model has 29 M entries, 0.35 GB per float64 CSR copy)."""
     if patches is not None:
-        return _patch_model(counts, areas, counted, resolution_mm, formulation, patches, cameras)
+        model = _patch_model(counts, areas, counted, resolution_mm, formulation, patches, cameras)
+        if recessed is None:
+            return model
+        row_patch = np.zeros(model.matrix.shape[0], dtype=np.int64)
+        row_patch[model.face_row] = patches.of_face[model.faces]
+        return replace(model, recessed=np.asarray(recessed)[row_patch])
     r = sp.csr_array(counts)
     seen = np.diff(r.indptr) > 0
     uncoverable = np.flatnonzero(counted & ~seen)

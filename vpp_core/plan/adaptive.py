@@ -170,12 +170,16 @@ def aimed_views(
 
 
 def target_rows(model: CoverModel, selected: np.ndarray) -> np.ndarray:
-    """Rows private to a selected view or sampled by few candidates, fewest candidates first."""
+    """Rows private to a selected view or sampled by few candidates, fewest candidates first;
+    never a recessed row (vpp_core.cover.access: cameras aimed at it see it through a slit)."""
     per_row = np.diff(model.matrix.indptr)
     private = np.zeros(len(per_row), dtype=bool)
     if len(selected):
         private[private_rows(model.matrix, selected).indices] = True
-    wanted = np.flatnonzero(private | (per_row <= FEW_CANDIDATES))
+    wanted = private | (per_row <= FEW_CANDIDATES)
+    if model.recessed is not None:
+        wanted &= ~model.recessed
+    wanted = np.flatnonzero(wanted)
     order = np.argsort(per_row[wanted], kind="stable")
     return wanted[order][:MAX_TARGETS]
 

@@ -9,6 +9,7 @@ from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, model_valida
 from vpp_core.camera.sensor import Sensor
 from vpp_core.candidates.generator import standoff_for
 from vpp_core.cell.setup import Setup
+from vpp_core.cover.access import DIRECTIONS
 from vpp_core.plan.cycle import Objective, TourOut
 from vpp_core.plan.diagnostics import Diagnostics
 from vpp_core.plan.metrics import Metrics
@@ -70,6 +71,18 @@ class Target(_Strict):
         "pieces of surface about 32 r̄ across, 5 r̄ in regions with their own target; R and "
         "area summed: coverage of sampled area, whatever the tessellation) or `faces` (one "
         "row per face, SPEC §3); default: the profile's",
+    )
+    open_min: int = Field(
+        0,
+        ge=0,
+        le=DIRECTIONS,
+        description=f"patch rows: a patch open along fewer of {DIRECTIONS} directions over the "
+        "sensor's incidence cone (rays from it that leave the part and the setup) is recessed, "
+        "seen if at all through a clearance or a slot, a slice per view: a partial cover gives "
+        "it no weight (it may stay unmet, listed in the plan's `cover_rows.recessed`); 0 "
+        "(default): no patch is recessed; 4 keeps the inside of a closed housing from driving "
+        "the count, and leaves out some of what a view sphere sees (docs/quality.md, "
+        '"Recessed patches")',
     )
 
 
@@ -348,6 +361,12 @@ class CoverRows(BaseModel):
     unsampled: Uncoverable | None = None
     """Counted faces that rays of some candidate hit, but in patches that no candidate samples
     with STRAY_RAYS (3) rays or more (grazing rays only): not in the cover."""
+    recessed: Uncoverable | None = None
+    """Faces of recessed patches (open along fewer than `target.open_min` of 64 directions:
+    vpp_core.cover.access) whose rows the selected views do not meet: a partial cover gives
+    them no weight, so they are neither in its coverable area nor in `partial.left_out`."""
+    recessed_area: float | None = None
+    """Share of the counted area in recessed patches, met or not."""
 
 
 class SetupOccluded(Uncoverable):
@@ -384,7 +403,8 @@ class LeftOut(Uncoverable):
 
 
 class PartialInfo(BaseModel):
-    """What a partial cover (target.min_coverage < 1) covers of the coverable area."""
+    """What a partial cover (target.min_coverage < 1) covers of the coverable area: the area
+    of its rows less the recessed patches' (`cover_rows.recessed`)."""
 
     min_coverage: float
     coverable_area_mm2: float

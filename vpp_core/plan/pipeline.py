@@ -16,6 +16,8 @@ import scipy.sparse as sp
 from vpp_core.camera.pose import Viewpoints, make_viewpoints
 from vpp_core.candidates.generator import GeneratorSettings, generate
 from vpp_core.cell.geometry import Cell, resolve
+from vpp_core.cell.scene import Occluders
+from vpp_core.cover.access import openness
 from vpp_core.cover.density import (
     Cameras,
     CoverModel,
@@ -37,7 +39,14 @@ from vpp_core.errors import LimitError
 from vpp_core.mesh.part import Part
 from vpp_core.mesh.refine import Elements, elements, refined_faces
 from vpp_core.plan.adaptive import adapt
-from vpp_core.plan.cellplan import allowed, annotate, cell_of, check_explicit, setup_backend
+from vpp_core.plan.cellplan import (
+    allowed,
+    annotate,
+    cell_of,
+    check_explicit,
+    scene_occluders,
+    setup_backend,
+)
 from vpp_core.plan.cycle import TourOut, make_tour
 from vpp_core.plan.diagnostics import diagnose
 from vpp_core.plan.document import (
@@ -215,7 +224,7 @@ def solve(
     """Cover the rows (all, or target.min_coverage of their area) as `settings` ask,
     columns at `costs` (N,) (None: one each); `mandatory` (rows,) rows (regions with their own
     target) are covered whatever min_coverage, which then applies to the other rows' area."""
-    area = model.row_areas()
+    area = model.row_weights()
     strict = np.zeros(len(area), bool) if mandatory is None else mandatory
     weights, fraction = mandatory_weights(area, strict, target.fraction)
     cover = solve_partial(
@@ -328,7 +337,7 @@ def finish(
     part = targets.part  # ignored faces not counted
     cameras = Cameras(views, request.sensor)
     with clock.stage("matrices"):
-        rows = rows_of(targets.whole, request, trace)
+        rows = rows_of(targets.whole, request, trace, cell)
         own = rows_model(rows, request, trace, cameras)
     with clock.stage("solve"):
         settings = _left(request.solver, clock.timings)
@@ -394,7 +403,7 @@ def grow(
     the setup (`cell`, else the request's) lets them be. `spent_s`: wall seconds the plan
     spent before (no round starts past ADAPT_SHARE of the time limit)."""
     cell = cell_of(request, cell)
-    rows = rows_of(part, request, trace)
+    rows = rows_of(part, request, trace, cell)
     split = rows.elements
     geometry = split.part if split else part
 
@@ -447,6 +456,8 @@ def _cover_rows(
     total = patches.areas.sum()
     sampled_by_any = np.diff(s.indptr) > 0
     mine = sp.csr_array(s[:, chosen])
+    met = meets(mine.sum(axis=1), 1.0)
+    recessed = np.zeros(patches.count, dtype=bool) if rows.recessed is None else rows.recessed
     return CoverRows(
         kind="patches",
         count=patches.count,
@@ -454,10 +465,20 @@ def _cover_rows(
         element_mm2=None if rows.elements is None else rows.elements.max_area_mm2,
         sampled_area=float(patches.areas[np.diff(mine.indptr) > 0].sum() / total),
         max_sampled_area=float(patches.areas[sampled_by_any].sum() / total),
-        met_area=float(patches.areas[meets(mine.sum(axis=1), 1.0)].sum() / total),
+        met_area=float(patches.areas[met].sum() / total),
         patch_of_face=patches.of_face.tolist(),
         unsampled=_uncoverable(part, unsampled),
+        recessed=_uncoverable(part, _faces_of_patches(rows, recessed & sampled_by_any & ~met)),
+        recessed_area=float(patches.areas[recessed].sum() / total),
     )
+
+
+def _faces_of_patches(rows: Rows, chosen: np.ndarray) -> np.ndarray:
+    """Ascending counted faces of the part in the patches `chosen` (P,) bool (the faces the
+    elements of those patches belong to, where the rows are elements)."""
+    assert rows.patches is not None
+    mine = np.flatnonzero(chosen[np.maximum(rows.patches.of_face, 0)] & (rows.patches.of_face >= 0))
+    return mine if rows.elements is None else np.unique(rows.elements.parent[mine])
 
 
 def spec_uncoverable(part: Part, trace: Trace) -> np.ndarray:
@@ -474,22 +495,30 @@ class Rows:
     targets: FaceTargets  # of the faces, or of the elements
     patches: Patches | None
     elements: Elements | None
+    recessed: np.ndarray | None = None  # (P,) bool recessed patches (vpp_core.cover.access)
 
     def counts(self, trace: Trace) -> sp.csc_array:
         """R of the rows' faces or elements."""
         return trace.counts if self.elements is None else sp.csc_array(trace.elements)
 
 
-def rows_of(part: Part, request: PlanRequest, trace: Trace) -> Rows:
+def rows_of(part: Part, request: PlanRequest, trace: Trace, cell: Cell | None = None) -> Rows:
     """The rows of `request`'s cover of `part` (as loaded) for R `trace`: patches of the
-    elements it was traced on (Trace.element_mm2), else of the faces, or the faces."""
+    elements it was traced on (Trace.element_mm2), else of the faces, or the faces; the
+    recessed patches among them, with the setup `cell`'s floor and fixtures."""
     targets = targets_of(part, request)
     split = None
     patches = request.target.rows == "patches"
     if patches and trace.elements is not None and trace.element_mm2 is not None:
         split = _elements(part, trace.element_mm2)
         targets = _element_targets(targets, split)
-    return Rows(targets, cover_patches(targets.part, request.target, targets), split)
+    grouped = cover_patches(targets.part, request.target, targets)
+    if grouped is None or not request.target.open_min:
+        return Rows(targets, grouped, split)
+    occluders = scene_occluders(targets.part, request.sensor, cell)
+    open_min = request.target.open_min
+    counts = _openness(targets.part, grouped, request.sensor.max_incidence_deg, occluders, open_min)
+    return Rows(targets, grouped, split, counts < open_min)
 
 
 def rows_model(rows: Rows, request: PlanRequest, trace: Trace, cameras: Cameras) -> CoverModel:
@@ -505,6 +534,7 @@ def rows_model(rows: Rows, request: PlanRequest, trace: Trace, cameras: Cameras)
         rows.patches,
         t.ignored,
         cameras,
+        recessed=rows.recessed,
     )
 
 
@@ -560,6 +590,19 @@ def cover_patches(part: Part, target: Target, targets: FaceTargets | None = None
     if targets is None or targets.uniform:
         return _patches(part, edge, smooth, None)
     return _patches(part, edge, smooth, targets)
+
+
+@lru_cache(maxsize=2)
+def _openness(
+    part: Part,
+    patches: Patches,
+    max_incidence_deg: float,
+    occluders: Occluders | None,
+    enough: int,
+) -> np.ndarray:
+    """vpp_core.cover.access.openness, cached: the adaptive rounds and the final cover ask
+    for the same (occluders are made anew per call, so only a plan without a setup reuses)."""
+    return openness(part, patches, max_incidence_deg, occluders, enough)
 
 
 @lru_cache(maxsize=2)
@@ -699,9 +742,11 @@ def _partial_info(model: CoverModel, cover: PartialCover, fraction: float) -> Pa
     face is left out where some row it lies in is)."""
     if fraction >= 1.0:
         return None
-    left = model.faces_of(~cover.satisfied)
-    total = float(model.areas.sum())
-    left_area = float(model.row_areas()[~cover.satisfied].sum())
+    weights = model.row_weights()
+    left_rows = ~cover.satisfied & (weights > 0)
+    left = model.faces_of(left_rows)
+    total = float(weights.sum())
+    left_area = float(weights[left_rows].sum())
     return PartialInfo(
         min_coverage=fraction,
         coverable_area_mm2=total,

@@ -148,3 +148,23 @@ def test_the_plan_gives_recessed_rows_no_weight_and_lists_what_it_leaves_of_them
     assert doc.partial.covered_fraction >= doc.target.min_coverage
     assert doc.partial.coverable_area_mm2 < default.partial.coverable_area_mm2
     assert len(doc.viewpoints) < len(default.viewpoints)  # 11 against 15, both proven
+
+
+def test_the_setups_floor_closes_what_faces_it():
+    from vpp_core.cell.geometry import resolve
+    from vpp_core.cell.setup import Setup
+    from vpp_core.plan.cellplan import scene_occluders
+
+    box = trimesh.creation.box([40, 30, 10])
+    box.apply_translation([0, 0, 5.5])  # 0.5 mm above the floor at z = 0
+    vertices, faces = trimesh.remesh.subdivide_to_size(box.vertices, box.faces, max_edge=4.0)
+    part = part_from_arrays(vertices, faces)
+    patches = cover_patches(part, Target(resolution_mm=1.2))
+    cell = resolve(Setup.model_validate({"floor": {"z_mm": 0}}))
+    free = openness(part, patches, SMALL.max_incidence_deg)
+    floored = openness(part, patches, SMALL.max_incidence_deg, scene_occluders(part, SMALL, cell))
+    bottom = patches.normals[:, 2] < -0.99
+    top = patches.normals[:, 2] > 0.99
+    assert bottom.any() and (free[bottom] == DIRECTIONS).all()
+    assert (floored[bottom] < OPEN_MIN).all()
+    assert (floored[top] == DIRECTIONS).all()

@@ -44,6 +44,25 @@ def test_a_nan_up_is_422_not_500(api: Any, mesh_id: str) -> None:
     )
 
 
+@pytest.mark.parametrize(
+    "turntable",
+    [
+        {"linear_axis": {"direction": [1e308, 1e308, 0]}},  # its norm overflowed: a 500
+        {"axis": [0, 1e200, 1e200]},
+        {"axis_point": [-1e300, 0, 0]},
+    ],
+)
+def test_a_setup_vector_beyond_any_cell_is_422_not_500(
+    api: Any, mesh_id: str, turntable: dict[str, Any]
+) -> None:  # found by schemathesis
+    setup = {"turntable": {"camera_to_cell": np.eye(4).tolist(), **turntable}}
+    body = {"kind": "decimation", "mesh_id": mesh_id, "setup": setup}
+    problem = refused(api.post("/v1/studies", json=body), 422)
+    assert (
+        "less than or equal to 10000000" in problem["detail"] or "greater than" in problem["detail"]
+    )
+
+
 def test_900000_invalid_viewpoints_are_refused_by_count(api: Any, mesh_id: str) -> None:
     body = b'{"mesh_id":"%s","candidates":[%s]}' % (mesh_id.encode(), b",".join([b"1"] * 900_000))
     r, took = timed(lambda: api.post("/v1/plans", content=body, headers=JSON))

@@ -12,18 +12,12 @@ from typing import Annotated, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-from vpp_core.robot.model import RobotSpec, TurntableSpec
+from vpp_core.robot.model import LIMIT_MM, Coord, Matrix4, RobotSpec, TurntableSpec, Vec3
 
 TRANSFORM_TOL = 1e-6
 """Largest |RᵀR - I| entry and |last row - (0, 0, 0, 1)| of a rigid 4×4 transform."""
 IDENTITY: list[list[float]] = np.eye(4).tolist()
 
-LIMIT_MM = 1e7
-"""Largest |coordinate| of a setup, mm (10 km): beyond any cell, far inside float range."""
-Coord = Annotated[float, Field(ge=-LIMIT_MM, le=LIMIT_MM)]
-Row4 = Annotated[list[Coord], Field(min_length=4, max_length=4)]
-Matrix4 = Annotated[list[Row4], Field(min_length=4, max_length=4)]
-Vec3 = Annotated[list[Coord], Field(min_length=3, max_length=3)]
 Vec2 = Annotated[list[Coord], Field(min_length=2, max_length=2)]
 Units = Literal["mm", "cm", "m", "in"]
 

@@ -168,10 +168,14 @@ def _study(
 
 
 class _Solver:
-    """Covers of one R at a resolution and formulation, as `plan` solves them, timed."""
+    """Covers of one R at a resolution and formulation, as `plan` solves them (in the setup
+    `cell`), timed."""
 
-    def __init__(self, part: Part, views: Viewpoints, trace: Trace, threads: int | None) -> None:
+    def __init__(
+        self, part: Part, views: Viewpoints, trace: Trace, threads: int | None, cell: Cell | None
+    ) -> None:
         self.part, self.views, self.trace, self.threads = part, views, trace, threads
+        self.cell = cell
         self.seconds: list[float] = []
         self._visibility: dict[tuple[float, float | None], PartialCover] = {}
 
@@ -180,7 +184,7 @@ class _Solver:
         no r̄, but patch rows are sized by it)."""
         t = request.target
         start = time.perf_counter()
-        rows = rows_of(self.part, request, self.trace)  # the regions keep their own targets
+        rows = rows_of(self.part, request, self.trace, self.cell)  # regions keep their targets
         own = rows_model(rows, request, self.trace, Cameras(self.views, request.sensor))
         key = (t.fraction, rows.patches.edge_mm if rows.patches else None)
         if t.formulation == "visibility" and key in self._visibility:
@@ -236,7 +240,7 @@ def resolution_sweep(
                 trace = trace_counts(
                     part, request.sensor, views, backend=tracer, threads=threads, elements=split
                 )
-                solvers[key] = _Solver(part, views, trace, threads)
+                solvers[key] = _Solver(part, views, trace, threads, cell)
             solver = solvers[key]
             cover, model, targets = solver.cover(req)
             seconds.append(solver.seconds[-1])
@@ -292,7 +296,7 @@ def decimation_study(
             planning, request.sensor, views, backend=tracer, threads=threads, elements=split
         )
         traced += trace.seconds
-        solver = _Solver(planning, views, trace, threads)
+        solver = _Solver(planning, views, trace, threads, cell)
         for formulation in FORMULATIONS:
             req = _with_target(plain, request.target.resolution_mm, formulation)
             cover, model, targets = solver.cover(req)

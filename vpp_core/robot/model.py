@@ -20,7 +20,12 @@ from vpp_core.errors import RobotError
 from vpp_core.robot.arms import ARMS
 from vpp_core.robot.urdf import Chain
 
-Row4 = Annotated[list[float], Field(min_length=4, max_length=4)]
+LIMIT_MM = 1e7
+"""Largest |coordinate| of a setup, mm (10 km): beyond any cell, far inside float range (a
+norm or a product of such numbers cannot overflow)."""
+Coord = Annotated[float, Field(ge=-LIMIT_MM, le=LIMIT_MM)]
+Vec3 = Annotated[list[Coord], Field(min_length=3, max_length=3)]
+Row4 = Annotated[list[Coord], Field(min_length=4, max_length=4)]
 Matrix4 = Annotated[list[Row4], Field(min_length=4, max_length=4)]
 IDENTITY: list[list[float]] = np.eye(4).tolist()
 MAX_JOINTS = 12
@@ -113,7 +118,7 @@ class LinearAxis(BaseModel):
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
-    direction: Annotated[list[float], Field(min_length=3, max_length=3)] = [0.0, 0.0, 1.0]
+    direction: Vec3 = [0.0, 0.0, 1.0]
     min_mm: float = Field(0.0, ge=-1e5, le=1e5)
     max_mm: float = Field(0.0, ge=-1e5, le=1e5)
     steps: int = Field(1, ge=1, le=100, description="camera stations the generator uses")
@@ -132,8 +137,8 @@ class TurntableSpec(BaseModel):
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
-    axis_point: Annotated[list[float], Field(min_length=3, max_length=3)] = [0.0, 0.0, 0.0]
-    axis: Annotated[list[float], Field(min_length=3, max_length=3)] = [0.0, 0.0, 1.0]
+    axis_point: Vec3 = [0.0, 0.0, 0.0]
+    axis: Vec3 = [0.0, 0.0, 1.0]
     camera_to_cell: Matrix4 = Field(description="the camera frame at the linear axis' zero")
     linear_axis: LinearAxis | None = None
     angle_limits_deg: Annotated[list[float], Field(min_length=2, max_length=2)] = [-180.0, 180.0]

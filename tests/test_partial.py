@@ -254,8 +254,8 @@ def test_the_search_beside_the_mip_finds_the_optimum_the_greedy_misses(monkeypat
 
 @pytest.mark.parametrize("seed", [1, 3, 9, 26])
 def test_with_one_thread_the_search_runs_first_and_highs_starts_from_its_cover(monkeypatch, seed):
-    # one core: the search has its share of the time alone, then HiGHS (answering nothing
-    # here) is started from the search's cover, not from the greedy one
+    # one core: a quick HiGHS try from the greedy cover, the search alone for its share of
+    # the time, then HiGHS (answering nothing here) from the search's cover
     rng = np.random.default_rng(seed)
     A = random_model(rng, 60, 16, binary=seed % 2 == 0)
     w = rng.random(60)
@@ -266,8 +266,11 @@ def test_with_one_thread_the_search_runs_first_and_highs_starts_from_its_cover(m
     out = solve_partial(A, w, 0.95, time_limit=3.0, threads=1)
     assert out.result.objective == optimum and out.achieved >= out.required - 1e-9
     g = _merged(A, w, np.ones(16))
-    if starts:  # not started when the search met the LP bound
-        x = starts[0][: g.A.shape[1]]
+    assert starts  # the quick try, from the greedy cover
+    greedy = greedy_partial(g.A, np.ones(g.A.shape[1]), g.w, 0.95 * w.sum())
+    assert np.flatnonzero(starts[0][: g.A.shape[1]]).tolist() == greedy.tolist()
+    if len(starts) > 1:  # not started again when the search met the LP bound
+        x = starts[-1][: g.A.shape[1]]
         assert x.sum() == optimum
         assert w[satisfied_rows(A, g.cols[np.flatnonzero(x)])].sum() >= 0.95 * w.sum() - 1e-9
     else:

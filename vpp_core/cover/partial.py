@@ -28,9 +28,12 @@ start on the other core until HiGHS answers; the cheaper of the two is the answe
 wins everywhere: on the crankshaft stand-in's patch model (7 090 rows, 543 candidates, 40 s)
 the search found 27 views where HiGHS kept 28, on the counter's (7 889 rows) HiGHS 78 where
 the search reached 83. With one thread (a service worker on a machine with as many cores as
-workers) the search has SEARCH_SHARE of the time first and HiGHS starts from its cover: on
-one core over nine default models at 36 s, 2 views fewer in all than HiGHS alone
-(docs/setcover.md). The status is "optimal" only when the bound meets the cover's cost.
+workers) they take turns, as in the strict cover: HiGHS a quick try of QUICK_SHARE of the
+time (a model it proves at once is answered at once), the search SEARCH_SHARE of what is
+left, then HiGHS from the search's cover: on one core over nine default models at 36 s, 2
+views fewer in all than HiGHS alone (docs/setcover.md; measured without the quick try, which
+session 41 added when a 49-camera plan spent half its minute in the search). The status is
+"optimal" only when the bound meets the cover's cost.
 f = 1 is the strict cover (`solve_cover`).
 """
 
@@ -47,7 +50,7 @@ import scipy.sparse as sp
 
 from vpp_core.cover import rowweight
 from vpp_core.cover.lpbound import Relaxation
-from vpp_core.cover.mip import GRACE_S, TIMED_OUT, submit, warm
+from vpp_core.cover.mip import GRACE_S, TIMED_OUT, MipAnswer, submit, warm
 from vpp_core.cover.problem import (
     BUILD_TOL,
     COVER_TOL,
@@ -58,7 +61,13 @@ from vpp_core.cover.problem import (
     integral_costs,
 )
 from vpp_core.cover.reduce import row_groups, undominated_columns
-from vpp_core.cover.setcover import SEARCH_SHARE, CoverResult, closes_gap, solve_cover
+from vpp_core.cover.setcover import (
+    QUICK_SHARE,
+    SEARCH_SHARE,
+    CoverResult,
+    closes_gap,
+    solve_cover,
+)
 from vpp_core.errors import SolverError
 
 LP_HEAD_START_S = 0.5
@@ -241,23 +250,23 @@ def _milp(
         bound, closed = closes_gap(lp, c[start].sum(), integral)
         if closed:
             return g.cols[start], "optimal", bound, None
-        best, found = start, None
-        if threads == 1:  # one core: the search first, then HiGHS from its cover
-            ahead = time.perf_counter() + SEARCH_SHARE * (deadline - time.perf_counter())
-            best, found = _walk(g, c, start, required, ahead, bound, lambda: False)
+        best, found, h = start, None, TIMED_OUT  # a MIP started late could outlive the deadline
+        quick = QUICK_SHARE * (deadline - time.perf_counter())
+        if threads == 1 and quick > 0.0:  # one core: a quick exact try, the search, then HiGHS
+            with submit(model, _mip_start(g.A, start), quick, mip_rel_gap, threads) as run:
+                h = run.answer()
+            best, found = _offered(g, c, required, best, found, h)
+            if h.status != highspy.HighsModelStatus.kOptimal:  # from the search's cover
+                ahead = time.perf_counter() + SEARCH_SHARE * (deadline - time.perf_counter())
+                best, found = _walk(g, c, best, required, ahead, bound, lambda: False)
         time_limit = deadline - time.perf_counter()
-        h = TIMED_OUT  # a MIP started now could outlive the deadline
-        if time_limit > 0.0 and not closes_gap(bound, c[best].sum(), integral)[1]:
+        proven = h.status == highspy.HighsModelStatus.kOptimal
+        if time_limit > 0.0 and not proven and not closes_gap(bound, c[best].sum(), integral)[1]:
             with submit(model, _mip_start(g.A, best), time_limit, mip_rel_gap, threads) as run:
                 if threads != 1:
                     best, found = _walk(g, c, start, required, deadline, bound, run.ready)
                 h = run.answer()
-        mip = None if h.x is None else np.flatnonzero(h.x[: g.A.shape[1]] > 0.5)
-        if mip is not None and _reaches(g.A, mip, g.w, required):
-            if c[mip].sum() < c[best].sum():
-                best, found = prune_partial(g.A, mip, c, g.w, required), time.perf_counter()
-            elif c[mip].sum() == c[best].sum():  # a tie: HiGHS's cover, which does not depend
-                best = prune_partial(g.A, mip, c, g.w, required)  # on how far the search got
+            best, found = _offered(g, c, required, best, found, h)
         dual = h.dual_bound if np.isfinite(h.dual_bound) else 0.0
         if not closes_gap(dual, c[best].sum(), integral)[1]:  # the LP may still close it
             dual = max(dual, relaxation.bound(deadline + GRACE_S - time.perf_counter()))
@@ -265,6 +274,23 @@ def _milp(
         relaxation.cancel()
     bound, closed = closes_gap(max(dual, 0.0), c[best].sum(), integral)
     return g.cols[best], _status(h.status, closed), bound, found
+
+
+def _offered(
+    g: _Merged,
+    c: np.ndarray,
+    required: float,
+    best: np.ndarray,
+    found: float | None,
+    h: MipAnswer,
+) -> tuple[np.ndarray, float | None]:
+    """The cover `best` (found at `found`) or HiGHS's answer `h`, whichever is cheaper; on a
+    tie HiGHS's, which does not depend on how far the search got."""
+    mip = None if h.x is None else np.flatnonzero(h.x[: g.A.shape[1]] > 0.5)
+    if mip is None or not _reaches(g.A, mip, g.w, required) or c[mip].sum() > c[best].sum():
+        return best, found
+    cheaper = c[mip].sum() < c[best].sum()
+    return prune_partial(g.A, mip, c, g.w, required), time.perf_counter() if cheaper else found
 
 
 def _mip_start(A: sp.csr_array, selected: np.ndarray) -> np.ndarray:

@@ -30,7 +30,9 @@ class EmbreeBackend:
     def first_hits(
         self, origin: np.ndarray, directions: np.ndarray, t_max: float
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Face id (n,) int32 (-1 = miss) and hit parameter t (n,) float32; releases the GIL."""
+        """Face id (n,) int32 (-1 = miss) and hit parameter t (n,) float32 of rays from
+        `origin` (3,), or from one origin each (n, 3) (vpp_core.cover.access); releases the
+        GIL."""
         origins = np.broadcast_to(origin.astype(np.float32), directions.shape)
         out = self._scene.run(origins, directions, dists=float(t_max), output=1)
         return out["primID"], out["tfar"]

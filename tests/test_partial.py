@@ -253,7 +253,7 @@ def test_the_search_beside_the_mip_finds_the_optimum_the_greedy_misses(monkeypat
 
 
 @pytest.mark.parametrize("seed", [1, 3, 9, 26])
-def test_with_one_thread_the_search_runs_first_and_highs_starts_from_its_cover(monkeypatch, seed):
+def test_with_one_thread_a_quick_try_then_the_search_then_highs_from_its_cover(monkeypatch, seed):
     # one core: a quick HiGHS try from the greedy cover, the search alone for its share of
     # the time, then HiGHS (answering nothing here) from the search's cover
     rng = np.random.default_rng(seed)

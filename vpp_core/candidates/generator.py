@@ -206,14 +206,22 @@ def smoothed_normals(
     return np.asarray(out)
 
 
-def tilt(normals: np.ndarray, max_deg: float, rng: np.random.Generator) -> np.ndarray:
-    """(k, 3) unit vectors drawn uniformly by solid angle within `max_deg` of each normal."""
-    cos_t = rng.uniform(np.cos(np.radians(max_deg)), 1.0, len(normals))
-    phi = rng.uniform(0.0, 2 * np.pi, len(normals))
+def normal_frames(normals: np.ndarray) -> np.ndarray:
+    """(k, 3, 3) rotations whose columns are two unit vectors across each unit normal (k, 3)
+    and the normal itself."""
     helper = np.where(np.abs(normals[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
     u = np.cross(normals, helper)
     u /= np.linalg.norm(u, axis=1, keepdims=True)
     v = np.cross(normals, u)
+    return np.stack([u, v, normals], axis=2)
+
+
+def tilt(normals: np.ndarray, max_deg: float, rng: np.random.Generator) -> np.ndarray:
+    """(k, 3) unit vectors drawn uniformly by solid angle within `max_deg` of each normal."""
+    cos_t = rng.uniform(np.cos(np.radians(max_deg)), 1.0, len(normals))
+    phi = rng.uniform(0.0, 2 * np.pi, len(normals))
+    frames = normal_frames(normals)
+    u, v = frames[:, :, 0], frames[:, :, 1]
     side = np.cos(phi)[:, None] * u + np.sin(phi)[:, None] * v
     return np.asarray(cos_t[:, None] * normals + np.sqrt(1 - cos_t * cos_t)[:, None] * side)
 

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from vpp_core.candidates.generator import normal_frames
 from vpp_core.cell.scene import Occluders
 from vpp_core.cover.patches import Patches
 from vpp_core.mesh.part import Part
@@ -106,18 +107,9 @@ def _open(
         f = faces[lo : lo + step]
         normal = side * part.normals[f]
         origin = part.vertices[part.faces[f]].mean(axis=1) + offset * normal
-        d = _frames(normal) @ cone.T  # (k, 3, n): the cone about each normal
+        d = normal_frames(normal) @ cone.T  # (k, 3, n): the cone about each normal
         d = np.ascontiguousarray(d.transpose(0, 2, 1).reshape(-1, 3), dtype=np.float32)
         o = np.repeat(origin, len(cone), axis=0).astype(np.float32)
         prim, _ = scene.first_hits(o, d, reach)
         free[lo : lo + step] = (prim.reshape(len(f), len(cone)) < 0).sum(axis=1)
     return free
-
-
-def _frames(normals: np.ndarray) -> np.ndarray:
-    """(k, 3, 3) rotations whose third column is each unit normal (k, 3)."""
-    helper = np.where(np.abs(normals[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
-    u = np.cross(normals, helper)
-    u /= np.linalg.norm(u, axis=1, keepdims=True)
-    v = np.cross(normals, u)
-    return np.stack([u, v, normals], axis=2)

@@ -157,12 +157,9 @@ def cover_model(
     Built on the seen rows' own sparsity pattern, one nnz-sized float array at a time (R of a
     309 k-face, 500-candidate model has 29 M entries, 0.35 GB per float64 CSR copy)."""
     if patches is not None:
-        model = _patch_model(counts, areas, counted, resolution_mm, formulation, patches, cameras)
-        if recessed is None:
-            return model
-        row_patch = np.zeros(model.matrix.shape[0], dtype=np.int64)
-        row_patch[model.face_row] = patches.of_face[model.faces]
-        return replace(model, recessed=np.asarray(recessed)[row_patch])
+        return _patch_model(
+            counts, areas, counted, resolution_mm, formulation, patches, cameras, recessed
+        )
     r = sp.csr_array(counts)
     seen = np.diff(r.indptr) > 0
     uncoverable = np.flatnonzero(counted & ~seen)
@@ -269,10 +266,12 @@ def _patch_model(
     formulation: Formulation,
     patches: Patches,
     cameras: Cameras | None,
+    recessed: np.ndarray | None = None,
 ) -> CoverModel:
     """cover_model on patch rows (summed R and A; face areas (M,) mm²), stray entries dropped
-    (`stray_free`), with the share each view samples where the `cameras` are given; the faces
-    of patches no candidate samples are uncoverable."""
+    (`stray_free`), with the share each view samples where the `cameras` are given and the
+    `recessed` (P,) patches marked; the faces of patches no candidate samples are
+    uncoverable."""
     r, share = _patch_counts(counts, patches, cameras)
     per_patch = cover_model(
         r,
@@ -288,6 +287,7 @@ def _patch_model(
     faces = np.flatnonzero(counted & (face_row >= 0))
     uncoverable = np.flatnonzero(counted & (face_row < 0))
     rows = face_row[faces]
+    marked = None if recessed is None else np.asarray(recessed)[per_patch.faces]
     return CoverModel(
-        per_patch.matrix, faces, rows, per_patch.density_rows, uncoverable, areas[faces]
+        per_patch.matrix, faces, rows, per_patch.density_rows, uncoverable, areas[faces], marked
     )

@@ -14,9 +14,9 @@ import numpy as np
 import scipy.sparse as sp
 
 from vpp_core.camera.pose import Viewpoints, make_viewpoints
+from vpp_core.camera.sensor import Sensor
 from vpp_core.candidates.generator import GeneratorSettings, generate
 from vpp_core.cell.geometry import Cell, resolve
-from vpp_core.cell.scene import Occluders
 from vpp_core.cover.access import openness
 from vpp_core.cover.density import (
     Cameras,
@@ -474,11 +474,11 @@ def _cover_rows(
 
 
 def _faces_of_patches(rows: Rows, chosen: np.ndarray) -> np.ndarray:
-    """Ascending counted faces of the part in the patches `chosen` (P,) bool (the faces the
-    elements of those patches belong to, where the rows are elements)."""
+    """Ascending faces of the part in the patches `chosen` (P,) bool (the faces the elements
+    of those patches belong to, where the rows are elements)."""
     assert rows.patches is not None
-    mine = np.flatnonzero(chosen[np.maximum(rows.patches.of_face, 0)] & (rows.patches.of_face >= 0))
-    return mine if rows.elements is None else np.unique(rows.elements.parent[mine])
+    faces = rows.patches.faces_of(np.flatnonzero(chosen))
+    return faces if rows.elements is None else np.unique(rows.elements.parent[faces])
 
 
 def spec_uncoverable(part: Part, trace: Trace) -> np.ndarray:
@@ -515,9 +515,8 @@ def rows_of(part: Part, request: PlanRequest, trace: Trace, cell: Cell | None = 
     grouped = cover_patches(targets.part, request.target, targets)
     if grouped is None or not request.target.open_min:
         return Rows(targets, grouped, split)
-    occluders = scene_occluders(targets.part, request.sensor, cell)
     open_min = request.target.open_min
-    counts = _openness(targets.part, grouped, request.sensor.max_incidence_deg, occluders, open_min)
+    counts = _openness(targets.part, grouped, request.sensor, cell, open_min)
     return Rows(targets, grouped, split, counts < open_min)
 
 
@@ -594,15 +593,12 @@ def cover_patches(part: Part, target: Target, targets: FaceTargets | None = None
 
 @lru_cache(maxsize=2)
 def _openness(
-    part: Part,
-    patches: Patches,
-    max_incidence_deg: float,
-    occluders: Occluders | None,
-    enough: int,
+    part: Part, patches: Patches, sensor: Sensor, cell: Cell | None, enough: int
 ) -> np.ndarray:
-    """vpp_core.cover.access.openness, cached: the adaptive rounds and the final cover ask
-    for the same (occluders are made anew per call, so only a plan without a setup reuses)."""
-    return openness(part, patches, max_incidence_deg, occluders, enough)
+    """vpp_core.cover.access.openness with the setup `cell`'s floor and fixtures, cached: the
+    adaptive rounds and the final cover ask for the same."""
+    occluders = scene_occluders(part, sensor, cell)
+    return openness(part, patches, sensor.max_incidence_deg, occluders, enough)
 
 
 @lru_cache(maxsize=2)

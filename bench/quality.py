@@ -3,14 +3,17 @@ the view-sphere baseline; one JSON line per (mesh, formulation, setting).
 
     python bench/quality.py [MESH...] [--formulations density visibility]
                             [--settings default paper tilt best open4] [--time-limit 60]
-                            [--sphere 1000] [--elements 1] [--out DIR]
+                            [--sphere 1000] [--elements 1] [--points 100000] [--out DIR]
 
 Every setting runs `vpp plan MESH --units U ... -q -o DIR/<name>.json` as a child process (the
 paper's camera, r̄ = 0.18 mm, seed 0) and reports its count, solver status and bound, the
 SPEC §5 coverage and met area (per face), the patch figures of the default (sampled and met
 area), wall time and the child's peak RSS, and an independent re-check: the selected views
 re-traced on the part split into area elements of at most `--elements` mm², the shares of the
-area they sample and meet at r̄ (SPEC §3 density per element, whatever the plan's rows were).
+area they sample and meet at r̄ (SPEC §3 density per element, whatever the plan's rows were);
+and the same judged at `--points` area-weighted random points with no pixel grid (a point is
+seen when the straight line from a camera reaches it: sub-pixel faces count by their area,
+not by whether a ray happened to land on them).
 The settings:
 
 - `default`: nothing but --units (and --formulation);
@@ -23,9 +26,9 @@ The settings:
 keeps a parent's peak RSS in the `ru_maxrss` of the children it forks, so tracing in this
 process first would inflate the children's figures. `sphere` lines give what `--sphere`
 viewpoints on view spheres around the part reach (vpp_core.candidates.sphere), traced in this
-process: the share of the counted area any of them sees (per face, SPEC §5) and the share of
-the patch area they sample. Meshes and units as bench/plan.py takes them (../shared/meshes
-and its MANIFEST.csv by default).
+process: the share of the counted area any of them sees (per face, SPEC §5), the share of
+the patch area they sample, and the point figures of all of them together. Meshes and units
+as bench/plan.py takes them (../shared/meshes and its MANIFEST.csv by default).
 """
 
 from __future__ import annotations
@@ -45,16 +48,19 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "bench"))
 
 from plan import default_meshes, manifest_units, run_child, vpp_command  # noqa: E402
+from surfacerows import point_views, random_points  # noqa: E402
 
-from vpp_core.camera.pose import make_viewpoints  # noqa: E402
+from vpp_core.camera.pose import Viewpoints, make_viewpoints  # noqa: E402
 from vpp_core.camera.sensor import Sensor  # noqa: E402
 from vpp_core.candidates.sphere import view_sphere  # noqa: E402
 from vpp_core.cover.density import density_matrix, meets, stray_free  # noqa: E402
+from vpp_core.mesh.part import Part  # noqa: E402
 from vpp_core.mesh.refine import refine  # noqa: E402
 from vpp_core.mesh.tessellate import load_part  # noqa: E402
 from vpp_core.plan.document import Target  # noqa: E402
 from vpp_core.plan.metrics import evaluate  # noqa: E402
 from vpp_core.plan.pipeline import cover_patches  # noqa: E402
+from vpp_core.trace.embree import EmbreeBackend  # noqa: E402
 from vpp_core.trace.raytrace import trace_counts  # noqa: E402
 
 SETTINGS = {
@@ -99,11 +105,35 @@ def run_setting(
     }
 
 
-def element_check(mesh: Path, units: str, doc: dict[str, Any], max_area: float) -> dict[str, Any]:
+def point_check(
+    part: Part, sensor: Sensor, views: Viewpoints, resolution_mm: float, count: int
+) -> dict[str, Any]:
+    """The shares of the counted area that `views` see and meet at `resolution_mm`, judged at
+    `count` area-weighted random points (seed 0) with no pixel grid: a point is seen when the
+    straight line from a camera reaches it within the image, the depth of field and the
+    incidence limit (bench/surfacerows.py), and met when the sampling densities
+    sqrt(rays/mm²) of the views that see it add up to 1 / r̄. Sub-pixel faces count by their
+    area, not by whether a ray happened to land on them."""
+    points = random_points(part, count, 0)
+    seen, density = np.zeros(count, bool), np.zeros(count)
+    for _, idx, delta in point_views(part, sensor, views, points, EmbreeBackend(part)):
+        seen[idx] = True
+        density[idx] += delta
+    return {
+        "point_seen": round(float(seen.mean()), 4),
+        "point_met": round(float(meets(density, 1 / resolution_mm).mean()), 4),
+    }
+
+
+def element_check(
+    mesh: Path, units: str, doc: dict[str, Any], max_area: float, points: int
+) -> dict[str, Any]:
     """The plan's selected views re-traced on the part split into elements of at most
     `max_area` mm² (vpp_core.mesh.refine), independent of its rows: the shares of the counted
-    area they sample (a ray lands) and meet (SPEC §3 density, summed over the views, ≥ 1 / r̄)."""
-    part = refine(load_part(mesh.read_bytes(), mesh.suffix[1:].lower(), units), max_area)
+    area they sample (a ray lands) and meet (SPEC §3 density, summed over the views, ≥ 1 / r̄);
+    then the same at `points` random points (point_check; 0: not)."""
+    whole = load_part(mesh.read_bytes(), mesh.suffix[1:].lower(), units)
+    part = refine(whole, max_area)
     vp = doc["viewpoints"]
     pose = [np.array([v[k] for v in vp], dtype=float) for k in ("position", "gaze", "up")]
     views = make_viewpoints(*pose)
@@ -112,14 +142,19 @@ def element_check(mesh: Path, units: str, doc: dict[str, Any], max_area: float) 
     k, a = part.counted, part.areas
     seen = np.diff(sp.csr_array(counts).indptr) > 0
     met = meets(density, 1 / doc["target"]["resolution_mm"])
-    return {
+    line = {
         "element_seen": round(float(a[k & seen].sum() / a[k].sum()), 4),
         "element_met": round(float(a[k & met].sum() / a[k].sum()), 4),
     }
+    if not points:
+        return line
+    sensor = Sensor(**doc["sensor"])
+    return line | point_check(whole, sensor, views, doc["target"]["resolution_mm"], points)
 
 
-def sphere_reach(mesh: Path, units: str, count: int) -> dict[str, Any]:
-    """What `count` view-sphere viewpoints reach of the part (faces seen, patches sampled)."""
+def sphere_reach(mesh: Path, units: str, count: int, points: int) -> dict[str, Any]:
+    """What `count` view-sphere viewpoints reach of the part (faces seen, patches sampled,
+    and at `points` random points: point_check)."""
     part = load_part(mesh.read_bytes(), mesh.suffix[1:].lower(), units)
     sensor = Sensor()
     views = view_sphere(part, sensor, count)
@@ -130,7 +165,8 @@ def sphere_reach(mesh: Path, units: str, count: int) -> dict[str, Any]:
     assert patches is not None
     r = stray_free(patches.sum_rows(counts))
     sampled = patches.areas[np.diff(r.indptr) > 0].sum() / patches.areas.sum()
-    return {
+    at_points = point_check(part, sensor, views, 0.18, points) if points else {}
+    return at_points | {
         "mesh": mesh.name,
         "setting": "sphere",
         "views": len(views),
@@ -151,6 +187,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, help="keep the plan documents here")
     ap.add_argument(
         "--elements", type=float, default=1.0, help="re-check plans on elements of this mm² (0: no)"
+    )
+    ap.add_argument(
+        "--points", type=int, default=100_000, help="and at this many random points (0: no)"
     )
     args = ap.parse_args(argv)
     meshes = args.meshes or default_meshes()
@@ -173,10 +212,11 @@ def main(argv: list[str] | None = None) -> int:
                     doc = out / f"{mesh.stem}-{formulation}-{setting}.json"
                     checks.append((mesh, unit, line, doc))
     for mesh, unit, line, doc in checks:
-        check = element_check(mesh, unit, json.loads(doc.read_text()), args.elements)
+        check = element_check(mesh, unit, json.loads(doc.read_text()), args.elements, args.points)
         print(json.dumps({k: line[k] for k in ("mesh", "formulation", "setting")} | check))
     for mesh in meshes if args.sphere else []:
-        print(json.dumps(sphere_reach(mesh, units.get(mesh.name, "mm"), args.sphere)), flush=True)
+        reach = sphere_reach(mesh, units.get(mesh.name, "mm"), args.sphere, args.points)
+        print(json.dumps(reach), flush=True)
     return 0
 
 

@@ -29,6 +29,7 @@ import argparse
 import json
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -134,14 +135,15 @@ def grid_candidates(
     return make_viewpoints(pos[ok], gaze[ok])
 
 
-def point_densities(
+def point_views(
     part: Part, sensor: Sensor, views: Viewpoints, points: Points, emb: EmbreeBackend
-) -> sp.csr_array:
-    """δ: (k, N) csr, sqrt(rays/mm²) of each view at each point it sees (0 = not seen)."""
+) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
+    """Per view j: (j, ids of the points it sees, δ = sqrt(rays/mm²) there). A point is seen
+    when it projects inside the image, its depth lies in the depth of field, the incidence is
+    within the limit and the ray from the camera reaches it first (face id or depth)."""
     pts, faces, _ = points
     normals, rot = part.normals[faces], views.rotations()
     cos_max = np.cos(np.radians(sensor.max_incidence_deg))
-    r, c, v = [], [], []
     for j in range(len(views)):
         d = pts - views.positions[j]
         x, y, z = (d @ rot[j]).T
@@ -158,10 +160,19 @@ def point_densities(
         dirs = (d[idx] / dist[idx, None]).astype(np.float32)
         prim, t = emb.first_hits(views.positions[j], dirs, float(dist[idx].max() * 1.001))
         idx = idx[(prim == faces[idx]) | (np.abs(t - dist[idx]) <= 1e-5 * dist[idx] + 1e-4)]
+        yield j, idx, np.sqrt(sensor.fx * sensor.fy * cos_t[idx] * dist[idx] / z[idx] ** 3)
+
+
+def point_densities(
+    part: Part, sensor: Sensor, views: Viewpoints, points: Points, emb: EmbreeBackend
+) -> sp.csr_array:
+    """δ: (k, N) csr, sqrt(rays/mm²) of each view at each point it sees (0 = not seen)."""
+    r, c, v = [np.zeros(0, int)], [np.zeros(0, int)], [np.zeros(0)]
+    for j, idx, delta in point_views(part, sensor, views, points, emb):
         r.append(idx)
         c.append(np.full(len(idx), j))
-        v.append(np.sqrt(sensor.fx * sensor.fy * cos_t[idx] * dist[idx] / z[idx] ** 3))
-    shape = (len(pts), len(views))
+        v.append(delta)
+    shape = (len(points[0]), len(views))
     return sp.csr_array((np.concatenate(v), (np.concatenate(r), np.concatenate(c))), shape=shape)
 
 

@@ -342,3 +342,37 @@ def test_two_views_of_one_end_of_a_facet_do_not_cover_its_other_end():
     right = (300 * 288 - (298**2 - 10**2) / 2) / 4 / 45_000  # x in [10, 298] under C
     assert met["elements"][1] == pytest.approx(left, abs=0.03)
     assert met["elements"][2] == pytest.approx(left + right, abs=0.03)
+
+
+def bench_quality():
+    """bench/quality.py as a module (it puts bench/ on sys.path for its own imports)."""
+    import importlib.util
+    import sys
+
+    from tests.conftest import ROOT
+
+    spec = importlib.util.spec_from_file_location("vpp_bench_quality", ROOT / "bench/quality.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_the_benchs_point_check_counts_area_a_camera_sees_and_meets():
+    """The bench's re-check at random points (bench/quality.py point_check): a 40 × 30 × 0.5 mm
+    plate seen from above sees its top (1 200 of 2 470 mm²: the bottom passes the incidence
+    test and lies in the image, only the occlusion test removes it; the rims are beyond 75°).
+    At 400 mm one view meets 0.18 mm (0.146 mm pixels); at 650 mm (0.238 mm) it does not,
+    and two such views add up to it (4.2 + 4.2 ≥ 5.6 per mm)."""
+    check = bench_quality().point_check
+    box = trimesh.creation.box([40, 30, 0.5])
+    part = part_from_arrays(box.vertices, box.faces)
+    top = 1200 / 2470
+    near = check(part, PAPER, look_down((0, 0, 400)), 0.18, 20_000)
+    assert near["point_seen"] == pytest.approx(top, abs=0.015)
+    assert near["point_met"] == near["point_seen"]
+    far = check(part, PAPER, look_down((0, 0, 650)), 0.18, 20_000)
+    assert far["point_seen"] == pytest.approx(top, abs=0.015) and far["point_met"] == 0
+    two = check(part, PAPER, look_down((0, 0, 650), (1, 0, 650)), 0.18, 20_000)
+    assert two["point_met"] == pytest.approx(top, abs=0.015)

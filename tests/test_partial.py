@@ -14,6 +14,7 @@ import scipy.sparse as sp
 
 from tests.conftest import ROOT
 from tests.test_setcover import random_cover_model
+from vpp_core.cover import partial as partial_module
 from vpp_core.cover.lpbound import Relaxation, relaxation_bound, row_lagrangian
 from vpp_core.cover.partial import (
     LP_HEAD_START_S,
@@ -253,27 +254,29 @@ def test_the_search_beside_the_mip_finds_the_optimum_the_greedy_misses(monkeypat
 
 
 @pytest.mark.parametrize("seed", [1, 3, 9, 26])
-def test_with_one_thread_a_quick_try_then_the_search_then_highs_from_its_cover(monkeypatch, seed):
-    # one core: a quick HiGHS try from the greedy cover, the search alone for its share of
-    # the time, then HiGHS (answering nothing here) from the search's cover
+def test_with_one_thread_a_quick_try_then_the_search_then_highs_again(monkeypatch, seed):
+    # one core: a quick HiGHS try, the search alone for its share of the time from the
+    # greedy cover, then HiGHS again (answering nothing here); HiGHS always starts cold: given
+    # the greedy cover as its incumbent it took 21 s to prove a 30-column model it proves
+    # cold in 1.5 s (vpp_core.cover.partial)
     rng = np.random.default_rng(seed)
     A = random_model(rng, 60, 16, binary=seed % 2 == 0)
     w = rng.random(60)
     optimum = brute_partial(A.toarray(), w, 0.95, np.ones(16))
-    starts = []
+    starts, walks = [], []
     fake = lambda model, start, *a, **k: starts.append(start) or Unheard(True)  # noqa: E731
     monkeypatch.setattr("vpp_core.cover.partial.submit", fake)
+    walk = partial_module._walk
+    monkeypatch.setattr(
+        "vpp_core.cover.partial._walk", lambda g, c, s, *a: walks.append(s) or walk(g, c, s, *a)
+    )
     out = solve_partial(A, w, 0.95, time_limit=3.0, threads=1)
     assert out.result.objective == optimum and out.achieved >= out.required - 1e-9
     g = _merged(A, w, np.ones(16))
-    assert starts  # the quick try, from the greedy cover
+    assert starts and all(start is None for start in starts)  # the quick try, and HiGHS cold
     greedy = greedy_partial(g.A, np.ones(g.A.shape[1]), g.w, 0.95 * w.sum())
-    assert np.flatnonzero(starts[0][: g.A.shape[1]]).tolist() == greedy.tolist()
-    if len(starts) > 1:  # not started again when the search met the LP bound
-        x = starts[-1][: g.A.shape[1]]
-        assert x.sum() == optimum
-        assert w[satisfied_rows(A, g.cols[np.flatnonzero(x)])].sum() >= 0.95 * w.sum() - 1e-9
-    else:
+    assert len(walks) == 1 and walks[0].tolist() == greedy.tolist()  # the search from greedy
+    if len(starts) == 1:  # not started again when the search met the LP bound
         assert out.result.status == "optimal"
 
 

@@ -19,18 +19,22 @@ halfway by partial coefficients earns nothing. The model stays exact after:
 The LP relaxation gives a bound (HiGHS's dual simplex in a thread, until the deadline; the
 bound is recomputed from its clipped row duals as a Lagrangian: `lpbound.row_lagrangian`).
 When it meets the greedy start's cost within LP_HEAD_START_S, that is the answer. Otherwise
-HiGHS solves the MIP from the greedy start in its child process (vpp_core.cover.mip) while the LP
-goes on beside it (HiGHS releases the GIL); the bound is the larger of the two. So a model
-too big for the MIP's root in time still gets its LP bound (plate_holes on 1 mm² elements at
-30 s: 6 for an 8-view cover, where the MIP alone gave 0). Meanwhile the row-weighting search
-(`vpp_core.cover.rowweight`, short rows of at most (1 - f) Σ w allowed) walks from the same
-start on the other core until HiGHS answers; the cheaper of the two is the answer. Neither
+HiGHS solves the MIP in its child process (vpp_core.cover.mip) while the LP goes on beside it
+(HiGHS releases the GIL); the bound is the larger of the two. So a model too big for the
+MIP's root in time still gets its LP bound (plate_holes on 1 mm² elements at 30 s: 6 for an
+8-view cover, where the MIP alone gave 0). Meanwhile the row-weighting search
+(`vpp_core.cover.rowweight`, short rows of at most (1 - f) Σ w allowed) walks from the greedy
+start on the other core until HiGHS answers; the cheaper of the two is the answer. HiGHS
+starts cold: given the greedy cover as its incumbent, it proved the stepped test part's
+partial model (1 010 rows, 30 candidates; the greedy cover was already optimal) in 6 375
+nodes and 21 s instead of 1 node and 1.5 s, and on the 19 shared and stand-in meshes
+(docs/quality.md) cold starts gave the same counts and bounds. Neither
 wins everywhere: on the crankshaft stand-in's patch model (7 090 rows, 543 candidates, 40 s)
 the search found 27 views where HiGHS kept 28, on the counter's (7 889 rows) HiGHS 78 where
 the search reached 83. With one thread (a service worker on a machine with as many cores as
 workers) they take turns, as in the strict cover: HiGHS a quick try of QUICK_SHARE of the
 time (a model it proves at once is answered at once), the search SEARCH_SHARE of what is
-left, then HiGHS from the search's cover: on one core over nine default models at 36 s, 2
+left, then HiGHS again: on one core over nine default models at 36 s, 2
 views fewer in all than HiGHS alone (docs/setcover.md; measured without the quick try, which
 session 41 added when a 49-camera plan spent half its minute in the search). The status is
 "optimal" only when the bound meets the cover's cost.
@@ -239,8 +243,8 @@ def _milp(
     mip_rel_gap: float,
     threads: int | None,
 ) -> tuple[np.ndarray, str, float | None, float | None]:
-    """The LP bound (in a thread) and, if it leaves a gap, HiGHS on the merged model from
-    `start` beside it: (original columns, status, bound, time found)."""
+    """The LP bound (in a thread) and, if it leaves a gap, HiGHS on the merged model beside it
+    and the search from `start`: (original columns, status, bound, time found)."""
     c = costs[g.cols]
     model = functools.partial(_model, g, c, required)
     integral = integral_costs(c)
@@ -253,16 +257,16 @@ def _milp(
         best, found, h = start, None, TIMED_OUT  # a MIP started late could outlive the deadline
         quick = QUICK_SHARE * (deadline - time.perf_counter())
         if threads == 1 and quick > 0.0:  # one core: a quick exact try, the search, then HiGHS
-            with submit(model, _mip_start(g.A, start), quick, mip_rel_gap, threads) as run:
+            with submit(model, None, quick, mip_rel_gap, threads) as run:
                 h = run.answer()
             best, found = _offered(g, c, required, best, found, h)
-            if h.status != highspy.HighsModelStatus.kOptimal:  # from the search's cover
+            if h.status != highspy.HighsModelStatus.kOptimal:  # the search from the better
                 ahead = time.perf_counter() + SEARCH_SHARE * (deadline - time.perf_counter())
                 best, found = _walk(g, c, best, required, ahead, bound, lambda: False)
         time_limit = deadline - time.perf_counter()
         proven = h.status == highspy.HighsModelStatus.kOptimal
         if time_limit > 0.0 and not proven and not closes_gap(bound, c[best].sum(), integral)[1]:
-            with submit(model, _mip_start(g.A, best), time_limit, mip_rel_gap, threads) as run:
+            with submit(model, None, time_limit, mip_rel_gap, threads) as run:
                 if threads != 1:
                     best, found = _walk(g, c, start, required, deadline, bound, run.ready)
                 h = run.answer()
@@ -291,13 +295,6 @@ def _offered(
         return best, found
     cheaper = c[mip].sum() < c[best].sum()
     return prune_partial(g.A, mip, c, g.w, required), time.perf_counter() if cheaper else found
-
-
-def _mip_start(A: sp.csr_array, selected: np.ndarray) -> np.ndarray:
-    """HiGHS's start (x (N), z (M)) for the columns `selected` (K,) of A (M, N)."""
-    x = np.zeros(A.shape[1])
-    x[selected] = 1.0
-    return np.concatenate([x, satisfied_rows(A, selected, BUILD_TOL).astype(float)])
 
 
 def _walk(

@@ -22,7 +22,7 @@ The settings:
 - `best`: the same with --candidates 2000;
 - `open4`: --open-min 4 (recessed patches weigh nothing in the partial cover).
 
-`element` figures come on lines of their own after every plan, `sphere` lines last: Linux
+The element and point figures come on lines of their own after the plans, `sphere` lines last: Linux
 keeps a parent's peak RSS in the `ru_maxrss` of the children it forks, so tracing in this
 process first would inflate the children's figures. `sphere` lines give what `--sphere`
 viewpoints on view spheres around the part reach (vpp_core.candidates.sphere), traced in this
@@ -125,31 +125,31 @@ def point_check(
     }
 
 
-def element_check(
+def plan_check(
     mesh: Path, units: str, doc: dict[str, Any], max_area: float, points: int
 ) -> dict[str, Any]:
     """The plan's selected views re-traced on the part split into elements of at most
-    `max_area` mm² (vpp_core.mesh.refine), independent of its rows: the shares of the counted
-    area they sample (a ray lands) and meet (SPEC §3 density, summed over the views, ≥ 1 / r̄);
-    then the same at `points` random points (point_check; 0: not)."""
+    `max_area` mm² (vpp_core.mesh.refine; 0: not), independent of its rows: the shares of the
+    counted area they sample (a ray lands) and meet (SPEC §3 density, summed over the views,
+    ≥ 1 / r̄); and the same at `points` random points (point_check; 0: not)."""
     whole = load_part(mesh.read_bytes(), mesh.suffix[1:].lower(), units)
-    part = refine(whole, max_area)
     vp = doc["viewpoints"]
     pose = [np.array([v[k] for v in vp], dtype=float) for k in ("position", "gaze", "up")]
     views = make_viewpoints(*pose)
-    counts = trace_counts(part, Sensor(**doc["sensor"]), views).counts
+    sensor, resolution = Sensor(**doc["sensor"]), doc["target"]["resolution_mm"]
+    line = point_check(whole, sensor, views, resolution, points) if points else {}
+    if not max_area:
+        return line
+    part = refine(whole, max_area)
+    counts = trace_counts(part, sensor, views).counts
     density = np.asarray(density_matrix(counts, part.areas).sum(axis=1)).ravel()
     k, a = part.counted, part.areas
     seen = np.diff(sp.csr_array(counts).indptr) > 0
-    met = meets(density, 1 / doc["target"]["resolution_mm"])
-    line = {
+    met = meets(density, 1 / resolution)
+    return line | {
         "element_seen": round(float(a[k & seen].sum() / a[k].sum()), 4),
         "element_met": round(float(a[k & met].sum() / a[k].sum()), 4),
     }
-    if not points:
-        return line
-    sensor = Sensor(**doc["sensor"])
-    return line | point_check(whole, sensor, views, doc["target"]["resolution_mm"], points)
 
 
 def sphere_reach(mesh: Path, units: str, count: int, points: int) -> dict[str, Any]:
@@ -208,11 +208,11 @@ def main(argv: list[str] | None = None) -> int:
             for setting in args.settings:
                 line = run_setting(mesh, unit, formulation, setting, args, out)
                 print(json.dumps(line), flush=True)
-                if args.elements and "views" in line:
+                if (args.elements or args.points) and "views" in line:
                     doc = out / f"{mesh.stem}-{formulation}-{setting}.json"
                     checks.append((mesh, unit, line, doc))
     for mesh, unit, line, doc in checks:
-        check = element_check(mesh, unit, json.loads(doc.read_text()), args.elements, args.points)
+        check = plan_check(mesh, unit, json.loads(doc.read_text()), args.elements, args.points)
         print(json.dumps({k: line[k] for k in ("mesh", "formulation", "setting")} | check))
     for mesh in meshes if args.sphere else []:
         reach = sphere_reach(mesh, units.get(mesh.name, "mm"), args.sphere, args.points)

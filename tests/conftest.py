@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import csv
+import importlib.util
 import os
+import sys
 import time
 import uuid
 from collections.abc import Iterator
@@ -67,6 +69,18 @@ def plate_part(**kw: float) -> Part:
     """A plate as a Part (mm)."""
     v, f = plate(**kw)
     return part_from_arrays(v, f)
+
+
+def bench_module(name: str) -> Any:
+    """bench/<name>.py imported as a module (it puts bench/ on sys.path for its own imports);
+    registered in sys.modules first, where its dataclasses look their module up."""
+    path = ROOT / "bench" / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(f"vpp_bench_{name}", path)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    return module
 
 
 def look_down(*positions: tuple[float, float, float]) -> Viewpoints:

@@ -4,32 +4,21 @@ with real forking workers: no 5xx, no transport error, every plan computed once.
 from __future__ import annotations
 
 import asyncio
-import importlib.util
-import sys
 import threading
 
 import httpx
 import pytest
 
-from tests.conftest import ROOT
+from tests.conftest import bench_module
 from vpp_core.samples import sample_stl
 
 pytestmark = pytest.mark.slow
 
 
-def bench_load():
-    spec = importlib.util.spec_from_file_location("vpp_bench_load", ROOT / "bench" / "load.py")
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # its dataclass looks its module up
-    spec.loader.exec_module(module)
-    return module
-
-
 def test_a_short_mixed_load_gets_no_5xx_and_computes_each_plan_once(
     live_api, start_workers, redis_db, tmp_path
 ) -> None:
-    load = bench_load()
+    load = bench_module("load")
     start_workers(2, ready=True)
     r = httpx.post(f"{live_api}/v1/meshes", files={"file": ("b.stl", sample_stl())}, timeout=60)
     tally = asyncio.run(load.drive(live_api, r.json()["id"], clients=20, duration=3, distinct=4))
@@ -45,7 +34,7 @@ def test_a_short_mixed_load_gets_no_5xx_and_computes_each_plan_once(
 
 
 def test_the_load_only_targets_loopback() -> None:
-    load = bench_load()
+    load = bench_module("load")
     with pytest.raises(ValueError, match="loopback"):
         asyncio.run(load.drive("http://example.org:80", "0" * 64, duration=0.1))
     with pytest.raises(SystemExit, match="loopback"):
@@ -55,7 +44,7 @@ def test_the_load_only_targets_loopback() -> None:
 def test_job_runs_waits_for_the_line_rq_writes_after_the_status(tmp_path) -> None:
     # RQ marks a job finished, then logs "Successfully completed": a job polled as succeeded
     # may not have its line yet (a fresh-clone run counted a plan computed 0 times)
-    load, log, job = bench_load(), tmp_path / "workers.log", "ab" * 32
+    load, log, job = bench_module("load"), tmp_path / "workers.log", "ab" * 32
     log.write_text("")
     line = f"Successfully completed plan {job[:12]} job in 0:00:01.500000s on worker w1\n"
     threading.Timer(0.3, log.write_text, args=(line,)).start()

@@ -8,7 +8,7 @@ import pytest
 import scipy.sparse as sp
 import trimesh
 
-from tests.conftest import look_down
+from tests.conftest import bench_module, look_down
 from vpp_core.camera.sensor import Sensor
 from vpp_core.candidates.generator import STANDOFF_MARGIN, standoff_for
 from vpp_core.candidates.sphere import fibonacci_directions, view_sphere
@@ -344,28 +344,13 @@ def test_two_views_of_one_end_of_a_facet_do_not_cover_its_other_end():
     assert met["elements"][2] == pytest.approx(left + right, abs=0.03)
 
 
-def bench_quality():
-    """bench/quality.py as a module (it puts bench/ on sys.path for its own imports)."""
-    import importlib.util
-    import sys
-
-    from tests.conftest import ROOT
-
-    spec = importlib.util.spec_from_file_location("vpp_bench_quality", ROOT / "bench/quality.py")
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
-
-
 def test_the_benchs_point_check_counts_area_a_camera_sees_and_meets():
     """The bench's re-check at random points (bench/quality.py point_check): a 40 × 30 × 0.5 mm
     plate seen from above sees its top (1 200 of 2 470 mm²: the bottom passes the incidence
     test and lies in the image, only the occlusion test removes it; the rims are beyond 75°).
     At 400 mm one view meets 0.18 mm (0.146 mm pixels); at 650 mm (0.238 mm) it does not,
     and two such views add up to it (4.2 + 4.2 ≥ 5.6 per mm)."""
-    check = bench_quality().point_check
+    check = bench_module("quality").point_check
     box = trimesh.creation.box([40, 30, 0.5])
     part = part_from_arrays(box.vertices, box.faces)
     top = 1200 / 2470

@@ -34,9 +34,10 @@ the search found 27 views where HiGHS kept 28, on the counter's (7 889 rows) HiG
 the search reached 83. With one thread (a service worker on a machine with as many cores as
 workers) they take turns, as in the strict cover: HiGHS a quick try of QUICK_SHARE of the
 time (a model it proves at once is answered at once), the search SEARCH_SHARE of what is
-left, then HiGHS again: on one core over nine default models at 36 s, 2
-views fewer in all than HiGHS alone (docs/setcover.md; measured without the quick try, which
-session 41 added when a 49-camera plan spent half its minute in the search). The status is
+left, then HiGHS again: on one core over nine default models at 36 s, 2 views fewer in all
+than HiGHS alone (docs/setcover.md; measured without the quick try, which session 41 added
+when a 49-camera plan spent half its minute in the search, and with HiGHS then started from
+the search's cover, not cold; not measured again). The status is
 "optimal" only when the bound meets the cover's cost.
 f = 1 is the strict cover (`solve_cover`).
 """

@@ -129,7 +129,8 @@ def plan_check(
     mesh: Path, units: str, doc: dict[str, Any], max_area: float, points: int
 ) -> dict[str, Any]:
     """The plan's selected views re-traced on the part split into elements of at most
-    `max_area` mm² (vpp_core.mesh.refine; 0: not), independent of its rows: the shares of the
+    `max_area` mm² (vpp_core.mesh.refine, by area alone as before session 43: a sliver stays
+    one element; 0: not), independent of its rows: the shares of the
     counted area they sample (a ray lands) and meet (SPEC §3 density, summed over the views,
     ≥ 1 / r̄); and the same at `points` random points (point_check; 0: not)."""
     whole = load_part(mesh.read_bytes(), mesh.suffix[1:].lower(), units)
@@ -140,7 +141,7 @@ def plan_check(
     line = point_check(whole, sensor, views, resolution, points) if points else {}
     if not max_area:
         return line
-    part = refine(whole, max_area)
+    part = refine(whole, max_area, max_edge_mm=np.inf)
     counts = trace_counts(part, sensor, views).counts
     density = np.asarray(density_matrix(counts, part.areas).sum(axis=1)).ravel()
     k, a = part.counted, part.areas

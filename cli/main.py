@@ -161,7 +161,8 @@ def _plan_options(p: argparse.ArgumentParser) -> None:
         "--max-face-area",
         type=float,
         metavar="MM2",
-        help="split faces larger than this, mm² (big CAD facets; 1 for the paper camera)",
+        help="split faces larger than this, mm², or longer than 2·sqrt(this) mm (big CAD "
+        "facets, slivers; 1 for the paper camera)",
     )
     p.add_argument("--sensor", type=Path, help="sensor JSON (SPEC §2); default: paper camera")
     p.add_argument(

@@ -10,7 +10,7 @@ from tests.conftest import MESHES, look_down, plate, shared_dir
 from vpp_core.camera.sensor import Sensor
 from vpp_core.errors import LimitError, MeshError
 from vpp_core.mesh.part import load_mesh, part_from_arrays
-from vpp_core.mesh.refine import bisect, generations, refine, refined_faces
+from vpp_core.mesh.refine import bisect, generations, longest_edges, refine, refined_faces
 from vpp_core.trace.raytrace import trace_counts
 
 
@@ -24,7 +24,7 @@ def test_plate_splits_into_equal_elements_no_larger_than_asked():
     assert np.allclose(out.normals, [0.0, 0.0, 1.0])
     assert out.counted.all()
     assert out.id != part.id
-    assert out.warnings[-1] == "faces larger than 1 mm² split: 2 faces -> 512"
+    assert out.warnings[-1] == "faces larger than 1 mm² or longer than 2 mm split: 2 faces -> 512"
 
 
 def test_children_lie_in_their_parent_with_its_winding_and_an_exact_share_of_its_area():
@@ -48,6 +48,25 @@ def test_children_lie_in_their_parent_with_its_winding_and_an_exact_share_of_its
         lam = _barycentric(p, a, b, c)
         assert lam.min() > -1e-9 and lam.max() < 1 + 1e-9
         assert np.allclose(lam.sum(axis=1), 1.0)
+
+
+def test_slivers_are_bisected_until_no_edge_is_longer_than_asked():
+    """Long thin triangles (30 x 3 x 0.2 mm spreads) bisected to edges of at most 5 mm: the
+    children tile their parent (areas add up, corners inside it, same winding)."""
+    rng = np.random.default_rng(7)
+    tri = rng.normal(size=(40, 3, 3)) * [[[30.0, 3.0, 0.2]]]
+    vertices, faces = tri.reshape(-1, 3), np.arange(120).reshape(40, 3)
+    v, f, parent = bisect(vertices, faces, np.zeros(40, dtype=np.int64), max_edge_mm=5.0)
+    assert longest_edges(v[f]).max() <= 5.0 * (1 + 1e-9)
+    assert longest_edges(tri).min() > 5.0 and len(f) > 4 * 40  # every one was split
+    cross = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    pcross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    area = np.bincount(parent, weights=np.linalg.norm(cross, axis=1), minlength=40)
+    assert np.allclose(area, np.linalg.norm(pcross, axis=1), rtol=1e-9)
+    assert np.all(np.einsum("ij,ij->i", cross, pcross[parent]) > 0)
+    for corner in range(3):
+        lam = _barycentric(v[f[:, corner]], *(tri[parent, i] for i in range(3)))
+        assert lam.min() > -1e-9 and lam.max() < 1 + 1e-9
 
 
 def _barycentric(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
@@ -78,7 +97,7 @@ def test_bad_sizes_and_too_many_faces_are_refused():
     for bad in (0.0, -1.0, float("nan"), float("inf")):
         with pytest.raises(MeshError, match="positive"):
             refine(part, bad)
-    with pytest.raises(LimitError, match="gives 512 faces, the limit is 100"):
+    with pytest.raises(LimitError, match="gives at least 512 faces, the limit is 100"):
         refine(part, 1.0, max_faces=100)
     assert generations(np.array([0.0, 1.0, 1.0 + 1e-9, 4.0]), 1.0).tolist() == [0, 0, 1, 2]
 
@@ -113,11 +132,18 @@ def test_a_cad_part_keeps_its_surface():
     out = refine(part, 1.0)
     assert out.n_faces == refined_faces(part, 1.0)
     assert out.areas.max() <= 1.0
+    assert longest_edges(out.vertices[out.faces]).max() <= 2.0 * (1 + 1e-9)
     assert out.area_mm2 == pytest.approx(part.area_mm2, rel=1e-9)
     assert np.allclose(out.bounds, part.bounds)
-    small = part.areas <= 1.0  # faces already small enough are kept as they are
+    # faces already small and short enough are kept as they are, the others split
+    long = longest_edges(part.vertices[part.faces]) > 2.0
+    small = (part.areas <= 1.0) & ~long
     kept = {tuple(sorted(map(tuple, part.vertices[face]))) for face in part.faces[small]}
     have = {tuple(sorted(map(tuple, out.vertices[face]))) for face in out.faces}
     assert kept <= have
-    children = 2 ** generations(part.areas, 1.0)
-    assert out.counted.sum() == children[part.counted].sum()
+    assert (part.areas[long] <= 1.0).sum() > 100  # slivers: split for their length alone
+    children = np.maximum(2 ** generations(part.areas, 1.0), np.where(long, 2, 1))
+    assert out.counted.sum() >= children[part.counted].sum()
+    by_area = refine(part, 1.0, max_edge_mm=np.inf)  # by area alone: 2^k children each
+    assert by_area.n_faces == (2 ** generations(part.areas, 1.0)).sum() < out.n_faces
+    assert by_area.n_faces == refined_faces(part, 1.0, max_edge_mm=np.inf)

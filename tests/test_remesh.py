@@ -63,4 +63,4 @@ def test_load_part_remeshes_then_splits_into_elements():
     part = load_part(sample_stl(), "stl", "mm", remesh_mm=3.0, max_face_area_mm2=1.0)
     assert part.areas.max() <= 1.0 + 1e-9
     assert part.warnings[-2].startswith("remeshed at 3 mm edges")
-    assert part.warnings[-1].startswith("faces larger than 1 mm² split")
+    assert part.warnings[-1].startswith("faces larger than 1 mm² or longer than 2 mm split")

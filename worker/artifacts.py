@@ -40,6 +40,7 @@ from vpp_core.cell.setup import MeshShape, Setup
 from vpp_core.errors import NotFoundError, SetupError
 from vpp_core.mesh.labels import FaceLabels
 from vpp_core.mesh.part import Part, with_labels
+from vpp_core.mesh.refine import ELEMENT_LENGTH
 from vpp_core.plan.document import CandidateInfo, CandidateOut, PlanDocument, PlanRequest
 from vpp_core.trace.raytrace import Trace
 from worker.store import Store
@@ -71,10 +72,13 @@ def trace_id(mesh_id: str, request: PlanRequest, element_mm2: float | None = Non
 
 
 def _optional(dump: dict[str, Any], element_mm2: float | None) -> dict[str, Any]:
-    """`dump` without its `setup` key when that is null, with `element_mm2` where given (ids
-    stay those of before setups and elements)."""
+    """`dump` without its `setup` key when that is null, with `element_mm2` and the elements'
+    length rule (vpp_core.mesh.refine.ELEMENT_LENGTH: R traced on elements split by area
+    alone is not reused) where given (ids stay those of before setups and elements)."""
     out = {k: v for k, v in dump.items() if k != "setup" or v is not None}
-    return out if element_mm2 is None else {**out, "element_mm2": element_mm2}
+    if element_mm2 is None:
+        return out
+    return {**out, "element_mm2": element_mm2, "element_length": ELEMENT_LENGTH}
 
 
 def pool_trace_id(

@@ -47,8 +47,9 @@ def upload_mesh(
         Form(
             gt=0,
             allow_inf_nan=False,
-            description="split faces larger than this (mm²) before storing: area elements "
-            "for CAD exports with big facets (docs/cad-meshes.md); 1 for the paper camera",
+            description="split faces larger than this (mm²), or with an edge longer than "
+            "2·sqrt(this) mm, before storing: area elements for CAD exports with big facets "
+            "and slivers (docs/cad-meshes.md); 1 for the paper camera",
         ),
     ] = None,
     remesh_mm: Annotated[

@@ -1,16 +1,21 @@
-"""Area elements: a part's faces bisected until none is larger than a given area.
+"""Area elements: a part's faces bisected until none is larger than a given area, or longer.
 
 Coverage in SPEC §3 is counted per face: a face is seen when one valid ray lands on it. On a
 CAD export, a hole wall or a pocket floor is often one long facet, seen "whole" when a single
 view grazes its rim (docs/cad-meshes.md measures what that claims). Splitting such faces into
-elements of bounded area keeps the surface and makes "seen" mean seen: an element of area
-`max_area_mm2` is a few pixels' footprints across, so one ray on it stands for its area.
+elements of bounded area and length keeps the surface and makes "seen" mean seen: an element
+of area at most A and longest edge at most ELEMENT_LENGTH · sqrt(A) is a few pixels'
+footprints across, so one ray on it stands for its area. The bound on length matters on CAD
+exports: a 30 mm facet along a hole's wall, 0.5 mm wide, is small in area, and a view that
+sees the rim end of it would otherwise stand for the whole strip.
 
 Each face larger than the limit is bisected on its longest edge, k times over, into 2^k
-children of exactly A / 2^k (k = ceil(log2(A / max_area))). Both halves of a bisection keep
-their parent's winding and plane, so the children inherit its outward normal; a midpoint is
-shared by every face that splits the same edge. A face whose neighbour is not split the same
-way leaves a T-junction: the surface is unchanged, its triangulation is not conforming.
+children of exactly A / 2^k (k = ceil(log2(A / max_area))); a child whose longest edge is
+still too long is bisected again, so the children of a sliver are halves, quarters, ... of
+it. Both halves of a bisection keep their parent's winding and plane, so the children
+inherit its outward normal; a midpoint is shared by every face that splits the same edge in
+the same pass. A face whose neighbour is not split the same way leaves a T-junction: the
+surface is unchanged, its triangulation is not conforming.
 """
 
 from __future__ import annotations
@@ -22,6 +27,11 @@ import scipy.sparse as sp
 
 from vpp_core.errors import LimitError, MeshError
 from vpp_core.mesh.part import DEFAULT_MAX_FACES, Part, part_from_children
+
+ELEMENT_LENGTH = 2.0
+"""An element's longest edge is at most ELEMENT_LENGTH · sqrt(its largest area): the
+hypotenuse of a right isosceles triangle of that area, so that a square's two halves (and
+every element bisection makes of them) are not split for their length."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -42,14 +52,24 @@ class Elements:
         return sp.csc_array(lift @ sp.csc_array(counts), dtype=np.int32)
 
 
-def elements(part: Part, max_area_mm2: float, *, max_faces: int = DEFAULT_MAX_FACES) -> Elements:
-    """`part` split into elements of at most `max_area_mm2` (mm²; `refine`), with the face of
-    `part` each lies in (the part itself, face for face, where no face is larger)."""
-    if not _splits(part, max_area_mm2, max_faces):
+def elements(
+    part: Part,
+    max_area_mm2: float,
+    *,
+    max_edge_mm: float | None = None,
+    max_faces: int = DEFAULT_MAX_FACES,
+) -> Elements:
+    """`part` split into elements of at most `max_area_mm2` (mm²) and edges of at most
+    `max_edge_mm` (mm; default max_length(max_area_mm2), inf: area only), with the face of
+    `part` each lies in (the part itself, face for face, where no face is larger or longer)."""
+    edge = max_length(max_area_mm2) if max_edge_mm is None else max_edge_mm
+    if not _splits(part, max_area_mm2, edge, max_faces):
         return Elements(part, np.arange(part.n_faces), part.n_faces, max_area_mm2)
     k = generations(part.areas, max_area_mm2)
-    vertices, faces, parent = bisect(part.vertices, part.faces, k)
-    note = f"faces larger than {max_area_mm2:g} mm² split: {part.n_faces} faces -> {len(faces)}"
+    vertices, faces, parent = bisect(part.vertices, part.faces, k, edge)
+    longer = f" or longer than {edge:.3g} mm" if np.isfinite(edge) else ""
+    count = f"{part.n_faces} faces -> {len(faces)}"
+    note = f"faces larger than {max_area_mm2:g} mm²{longer} split: {count}"
     child = part_from_children(part, vertices, faces, parent, note)
     return Elements(child, parent, part.n_faces, max_area_mm2)
 
@@ -61,58 +81,104 @@ def generations(areas: np.ndarray, max_area_mm2: float) -> np.ndarray:
     return np.maximum(k, 0)
 
 
-def refined_faces(part: Part, max_area_mm2: float) -> int:
-    """How many faces `refine(part, max_area_mm2)` gives, computed without refining."""
+def max_length(max_area_mm2: float) -> float:
+    """The longest edge (mm) an element of at most `max_area_mm2` (mm²) may have."""
+    return ELEMENT_LENGTH * float(np.sqrt(max(max_area_mm2, 0.0)))
+
+
+def refined_faces(
+    part: Part, max_area_mm2: float, max_edge_mm: float | None = None, cap: int | None = None
+) -> int:
+    """How many faces `refine(part, max_area_mm2, max_edge_mm=...)` gives (counted by
+    bisecting the faces to split, without building the part); the count stops growing past
+    `cap` faces."""
+    edge = max_length(max_area_mm2) if max_edge_mm is None else max_edge_mm
     k = generations(part.areas, max_area_mm2)
-    return int(np.sum(np.left_shift(1, k)))
+    todo = (k > 0) | (longest_edges(part.vertices[part.faces]) > edge * (1 + 1e-9))
+    if not todo.any():
+        return part.n_faces
+    rest = part.n_faces - int(todo.sum())
+    cap = None if cap is None else max(cap - rest, 0)
+    _, split, _ = bisect(part.vertices, part.faces[todo], k[todo], edge, cap)
+    return rest + len(split)
 
 
-def refine(part: Part, max_area_mm2: float, *, max_faces: int = DEFAULT_MAX_FACES) -> Part:
-    """`part` with every face larger than `max_area_mm2` (mm²) bisected into elements that
-    are not (`part` itself when none is); LimitError when that gives more than `max_faces`."""
-    return elements(part, max_area_mm2, max_faces=max_faces).part
+def longest_edges(tri: np.ndarray) -> np.ndarray:
+    """(M,) longest edge (mm) of each triangle of corners (M, 3, 3) mm."""
+    return np.asarray(np.sqrt(_edges2(tri).max(axis=0)))
 
 
-def _splits(part: Part, max_area_mm2: float, max_faces: int) -> bool:
-    """Whether some face of `part` is larger than `max_area_mm2` (mm²); MeshError
-    for a limit that is not a positive number, LimitError where the split gives more than
-    `max_faces` faces."""
+def _edges2(tri: np.ndarray) -> np.ndarray:
+    """(3, M) squared edge lengths of triangles (M, 3, 3): edge e runs from corner e to e + 1."""
+    return np.stack([((tri[:, (e + 1) % 3] - tri[:, e]) ** 2).sum(axis=1) for e in range(3)])
+
+
+def refine(
+    part: Part,
+    max_area_mm2: float,
+    *,
+    max_edge_mm: float | None = None,
+    max_faces: int = DEFAULT_MAX_FACES,
+) -> Part:
+    """`part` with every face larger than `max_area_mm2` (mm²), or longer than `max_edge_mm`
+    (`elements`), bisected into elements that are not (`part` itself when none is);
+    LimitError when that gives more than `max_faces`."""
+    return elements(part, max_area_mm2, max_edge_mm=max_edge_mm, max_faces=max_faces).part
+
+
+def _splits(part: Part, max_area_mm2: float, max_edge_mm: float, max_faces: int) -> bool:
+    """Whether some face of `part` is larger than `max_area_mm2` (mm²) or longer than
+    `max_edge_mm` (mm); MeshError for an area that is not a positive number, LimitError where
+    the split gives more than `max_faces` faces."""
     if not np.isfinite(max_area_mm2) or max_area_mm2 <= 0:
         raise MeshError(f"max face area must be a positive number of mm², got {max_area_mm2}")
-    total = refined_faces(part, max_area_mm2)
+    total = refined_faces(part, max_area_mm2, max_edge_mm, cap=max_faces + 1)
     if total > max_faces:
+        least = max(total, int(np.sum(np.left_shift(1, generations(part.areas, max_area_mm2)))))
         raise LimitError(
-            f"splitting faces to at most {max_area_mm2:g} mm² gives {total} faces, the limit "
-            f"is {max_faces}; ask for larger elements"
+            f"splitting faces to at most {max_area_mm2:g} mm² gives at least {least} faces, "
+            f"the limit is {max_faces}; ask for larger elements"
         )
     return total > part.n_faces
 
 
 def bisect(
-    vertices: np.ndarray, faces: np.ndarray, k: np.ndarray
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    k: np.ndarray,
+    max_edge_mm: float = np.inf,
+    cap: int | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Faces (M, 3) of `vertices` (V, 3) bisected on their longest edge k (M,) times over:
-    ((V', 3) vertices, (M', 3) faces, (M',) parent face of each), children in parent order."""
+    """Faces (M, 3) of `vertices` (V, 3) bisected on their longest edge k (M,) times over, and
+    again while their longest edge exceeds `max_edge_mm`: ((V', 3) vertices, (M', 3) faces,
+    (M',) parent face of each), children in parent order. With `cap`, bisection stops once
+    there are more than `cap` faces (for counting: the result is then incomplete)."""
     chunks, n_vertices = [vertices], len(vertices)
     parent = np.arange(len(faces))
-    while (todo := k > 0).any():
+    done_faces, done_parents = [faces[:0]], [parent[:0]]
+    while len(faces):
         v = np.concatenate(chunks) if len(chunks) > 1 else chunks[0]
         chunks = [v]
-        f = faces[todo]
-        tri = v[f]
-        edge2 = np.stack([((tri[:, (e + 1) % 3] - tri[:, e]) ** 2).sum(axis=1) for e in range(3)])
-        e = edge2.argmax(axis=0)  # edge e runs from corner e to corner e + 1
-        rows = np.arange(len(f))
-        a, b, c = f[rows, e], f[rows, (e + 1) % 3], f[rows, (e + 2) % 3]
+        edge2 = _edges2(v[faces])
+        todo = (k > 0) | (edge2.max(axis=0) > max_edge_mm**2 * (1 + 1e-9))
+        done_faces.append(faces[~todo])
+        done_parents.append(parent[~todo])
+        faces, parent, k, e = faces[todo], parent[todo], k[todo], edge2[:, todo].argmax(axis=0)
+        if cap is not None and sum(map(len, done_faces)) + 2 * len(faces) > cap:
+            done_faces.append(np.concatenate([faces, faces]))
+            done_parents.append(np.concatenate([parent, parent]))
+            break
+        rows = np.arange(len(faces))
+        a, b, c = faces[rows, e], faces[rows, (e + 1) % 3], faces[rows, (e + 2) % 3]
         ends = np.stack([np.minimum(a, b), np.maximum(a, b)], axis=1)
         split, slot = np.unique(ends, axis=0, return_inverse=True)
         chunks.append(0.5 * (v[split[:, 0]] + v[split[:, 1]]))
         mid = n_vertices + slot.ravel()
         n_vertices += len(split)
-        halves = [np.column_stack([a, mid, c]), np.column_stack([mid, b, c])]
-        faces = np.concatenate([faces[~todo], *halves])
-        parent = np.concatenate([parent[~todo], parent[todo], parent[todo]])
-        k = np.concatenate([k[~todo], k[todo] - 1, k[todo] - 1])
+        faces = np.concatenate([np.column_stack([a, mid, c]), np.column_stack([mid, b, c])])
+        parent = np.concatenate([parent, parent])
+        k = np.concatenate([k - 1, k - 1])
+    faces, parent = np.concatenate(done_faces), np.concatenate(done_parents)
     order = np.argsort(parent, kind="stable")  # children next to each other, in parent order
     v = np.concatenate(chunks) if len(chunks) > 1 else chunks[0]
     return v, faces[order], parent[order]

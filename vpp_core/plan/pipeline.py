@@ -97,9 +97,10 @@ turbineblade's at 60.2 s (3.7 s of metrics, 2.2 s of diagnostics, its document, 
 interpreter's start before the clock)."""
 ELEMENTS_PER_PATCH = 2.0
 """The default cover's rows are made of area elements: faces larger than a patch's area /
-ELEMENTS_PER_PATCH are split (vpp_core.mesh.refine) and traced as such, so that a CAD facet
-larger than a patch is grouped into patches like any surface and a view covers only the
-pieces it samples (docs/quality.md, stage 3c)."""
+ELEMENTS_PER_PATCH, or longer than a patch's diagonal (vpp_core.mesh.refine.ELEMENT_LENGTH),
+are split and traced as such, so that a CAD facet larger or longer than a patch is grouped
+into patches like any surface and a view covers only the pieces it samples (docs/quality.md,
+stage 3c)."""
 MAX_ELEMENTS = 1_000_000
 """Elements at most: the element area doubles until the split stays within this."""
 ADAPT_SHARE = 0.5
@@ -559,7 +560,8 @@ def element_area(part: Part, resolution_mm: float) -> float:
     doubled until the split gives at most MAX_ELEMENTS (or the part's own faces)."""
     area = float(part.areas[part.counted].sum())
     limit = patch_edge(resolution_mm, area) ** 2 / ELEMENTS_PER_PATCH
-    while refined_faces(part, limit) > max(MAX_ELEMENTS, part.n_faces):
+    bound = max(MAX_ELEMENTS, part.n_faces)
+    while refined_faces(part, limit, cap=bound + 1) > bound:
         limit *= 2
     return limit
 

@@ -316,7 +316,9 @@ def test_partial_cover_claims_hold_independently(part, formulation, rows):
         share = pinhole_share(rp, ap, *patch_planes(geo, of), c2w, SMALL)
         rows_of = np.flatnonzero(rp.any(axis=1))
         recessed = independent_recessed(geo, of, SMALL.max_incidence_deg)  # weigh nothing
-        s, w = s_matrix(rp, ap, res, formulation, share), np.where(recessed, 0, ap)[rows_of]
+        reach = np.where(rp > 0, share, 0.0).max(axis=1)  # a patch weighs what can be sampled
+        w = np.where(recessed, 0, ap * reach)[rows_of]
+        s = s_matrix(rp, ap, res, formulation, share)
         row_faces = [np.unique(parent[(of == p) & geo.counted]).tolist() for p in rows_of]
     chosen = [v.id for v in doc.viewpoints]
     met = s[:, chosen].sum(axis=1) >= 1 - 1e-9

@@ -53,6 +53,7 @@ class CoverModel:
     uncoverable: np.ndarray  # (u,) int64 counted faces seen by no candidate
     areas: np.ndarray  # (K,) float64 mm²: what each pair's face brings to its row
     recessed: np.ndarray | None = None  # (rows,) bool: recessed patches (vpp_core.cover.access)
+    reach: np.ndarray | None = None  # (rows,) u_p in (0, 1]: the share its best candidate samples
 
     def row_areas(self) -> np.ndarray:
         """(rows,) mm²: the areas of each row's faces, summed."""
@@ -60,9 +61,12 @@ class CoverModel:
         return np.asarray(np.bincount(self.face_row, weights=self.areas, minlength=rows))
 
     def row_weights(self) -> np.ndarray:
-        """(rows,) mm²: what each row weighs in a partial cover, its area, none for a recessed
-        row (vpp_core.cover.access)."""
+        """(rows,) mm²: what each row weighs in a partial cover, the area that can be sampled
+        of it (its area times `reach`, where the rows are patches sampled in shares), none for
+        a recessed row (vpp_core.cover.access)."""
         area = self.row_areas()
+        if self.reach is not None:
+            area = area * self.reach
         return area if self.recessed is None else np.where(self.recessed, 0.0, area)
 
     def faces_of(self, rows: np.ndarray) -> np.ndarray:
@@ -288,6 +292,7 @@ def _patch_model(
     uncoverable = np.flatnonzero(counted & (face_row < 0))
     rows = face_row[faces]
     marked = None if recessed is None else np.asarray(recessed)[per_patch.faces]
+    u = None if share is None else reach(r.indptr, share)[per_patch.faces]
     return CoverModel(
-        per_patch.matrix, faces, rows, per_patch.density_rows, uncoverable, areas[faces], marked
+        per_patch.matrix, faces, rows, per_patch.density_rows, uncoverable, areas[faces], marked, u
     )

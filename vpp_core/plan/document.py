@@ -404,7 +404,8 @@ class LeftOut(Uncoverable):
 
 class PartialInfo(BaseModel):
     """What a partial cover (target.min_coverage < 1) covers of the coverable area: the area
-    of its rows less the recessed patches' (`cover_rows.recessed`)."""
+    of its rows less the recessed patches' (`cover_rows.recessed`); a patch row counts the
+    share of its area its best candidate samples (docs/quality.md, stage 6)."""
 
     min_coverage: float
     coverable_area_mm2: float

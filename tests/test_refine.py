@@ -10,8 +10,13 @@ from tests.conftest import MESHES, look_down, plate, shared_dir
 from vpp_core.camera.sensor import Sensor
 from vpp_core.errors import LimitError, MeshError
 from vpp_core.mesh.part import load_mesh, part_from_arrays
-from vpp_core.mesh.refine import bisect, generations, longest_edges, refine, refined_faces
+from vpp_core.mesh.refine import bisect, generations, refine, refined_faces
 from vpp_core.trace.raytrace import trace_counts
+
+
+def longest_edges(tri: np.ndarray) -> np.ndarray:
+    """(M,) longest edge (mm) of each triangle of corners (M, 3, 3) mm."""
+    return np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=2).max(axis=1)
 
 
 def test_plate_splits_into_equal_elements_no_larger_than_asked():

@@ -61,12 +61,23 @@ def elements(
 ) -> Elements:
     """`part` split into elements of at most `max_area_mm2` (mm²) and edges of at most
     `max_edge_mm` (mm; default max_length(max_area_mm2), inf: area only), with the face of
-    `part` each lies in (the part itself, face for face, where no face is larger or longer)."""
-    edge = max_length(max_area_mm2) if max_edge_mm is None else max_edge_mm
-    if not _splits(part, max_area_mm2, edge, max_faces):
+    `part` each lies in (the part itself, face for face, where no face is larger or longer).
+    MeshError for an area that is not a positive number, LimitError where the split gives
+    more than `max_faces` faces (found while splitting: bisection stops past the limit)."""
+    if not np.isfinite(max_area_mm2) or max_area_mm2 <= 0:
+        raise MeshError(f"max face area must be a positive number of mm², got {max_area_mm2}")
+    edge = _edge_limit(max_area_mm2, max_edge_mm)
+    vertices, faces, parent = _split(part, max_area_mm2, edge, cap=max_faces + 1)
+    if len(faces) > max_faces:
+        least = max(
+            len(faces), int(np.sum(np.left_shift(1, generations(part.areas, max_area_mm2))))
+        )
+        raise LimitError(
+            f"splitting faces to at most {max_area_mm2:g} mm² gives at least {least} faces, "
+            f"the limit is {max_faces}; ask for larger elements"
+        )
+    if len(faces) == part.n_faces:  # nothing was split
         return Elements(part, np.arange(part.n_faces), part.n_faces, max_area_mm2)
-    k = generations(part.areas, max_area_mm2)
-    vertices, faces, parent = bisect(part.vertices, part.faces, k, edge)
     longer = f" or longer than {edge:.3g} mm" if np.isfinite(edge) else ""
     count = f"{part.n_faces} faces -> {len(faces)}"
     note = f"faces larger than {max_area_mm2:g} mm²{longer} split: {count}"
@@ -86,26 +97,26 @@ def max_length(max_area_mm2: float) -> float:
     return ELEMENT_LENGTH * float(np.sqrt(max(max_area_mm2, 0.0)))
 
 
+def _edge_limit(max_area_mm2: float, max_edge_mm: float | None) -> float:
+    """The longest edge (mm) asked for: `max_edge_mm`, by default max_length(max_area_mm2)."""
+    return max_length(max_area_mm2) if max_edge_mm is None else max_edge_mm
+
+
+def _split(
+    part: Part, max_area_mm2: float, max_edge_mm: float, cap: int | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`bisect` of `part`'s faces to at most `max_area_mm2` (mm²) and `max_edge_mm` (mm)."""
+    k = generations(part.areas, max_area_mm2)
+    return bisect(part.vertices, part.faces, k, max_edge_mm, cap)
+
+
 def refined_faces(
     part: Part, max_area_mm2: float, max_edge_mm: float | None = None, cap: int | None = None
 ) -> int:
-    """How many faces `refine(part, max_area_mm2, max_edge_mm=...)` gives (counted by
-    bisecting the faces to split, without building the part); the count stops growing past
-    `cap` faces."""
-    edge = max_length(max_area_mm2) if max_edge_mm is None else max_edge_mm
-    k = generations(part.areas, max_area_mm2)
-    todo = (k > 0) | (longest_edges(part.vertices[part.faces]) > edge * (1 + 1e-9))
-    if not todo.any():
-        return part.n_faces
-    rest = part.n_faces - int(todo.sum())
-    cap = None if cap is None else max(cap - rest, 0)
-    _, split, _ = bisect(part.vertices, part.faces[todo], k[todo], edge, cap)
-    return rest + len(split)
-
-
-def longest_edges(tri: np.ndarray) -> np.ndarray:
-    """(M,) longest edge (mm) of each triangle of corners (M, 3, 3) mm."""
-    return np.asarray(np.sqrt(_edges2(tri).max(axis=0)))
+    """How many faces `refine(part, max_area_mm2, max_edge_mm=...)` gives; the count stops
+    growing past `cap` faces."""
+    edge = _edge_limit(max_area_mm2, max_edge_mm)
+    return len(_split(part, max_area_mm2, edge, cap)[1])
 
 
 def _edges2(tri: np.ndarray) -> np.ndarray:
@@ -124,22 +135,6 @@ def refine(
     (`elements`), bisected into elements that are not (`part` itself when none is);
     LimitError when that gives more than `max_faces`."""
     return elements(part, max_area_mm2, max_edge_mm=max_edge_mm, max_faces=max_faces).part
-
-
-def _splits(part: Part, max_area_mm2: float, max_edge_mm: float, max_faces: int) -> bool:
-    """Whether some face of `part` is larger than `max_area_mm2` (mm²) or longer than
-    `max_edge_mm` (mm); MeshError for an area that is not a positive number, LimitError where
-    the split gives more than `max_faces` faces."""
-    if not np.isfinite(max_area_mm2) or max_area_mm2 <= 0:
-        raise MeshError(f"max face area must be a positive number of mm², got {max_area_mm2}")
-    total = refined_faces(part, max_area_mm2, max_edge_mm, cap=max_faces + 1)
-    if total > max_faces:
-        least = max(total, int(np.sum(np.left_shift(1, generations(part.areas, max_area_mm2)))))
-        raise LimitError(
-            f"splitting faces to at most {max_area_mm2:g} mm² gives at least {least} faces, "
-            f"the limit is {max_faces}; ask for larger elements"
-        )
-    return total > part.n_faces
 
 
 def bisect(

@@ -237,6 +237,39 @@ def test_the_time_limit_is_the_whole_plans_budget(monkeypatch):
     assert not pipeline.plan(part, grown, load_s=budget * pipeline.ADAPT_SHARE).adaptive
 
 
+def test_no_round_starts_that_its_tracing_or_the_rows_would_end_past_half(monkeypatch):
+    # a pool traced slowly (the seconds a slow machine reports) predicts a slow round: none
+    # starts, though the trace ended early; and the rows' grouping counts in the budget
+    import time
+    from dataclasses import replace
+
+    from vpp_core.plan import pipeline
+
+    part = load_mesh(sample_stl(), "stl")
+    budget = 6.0
+    request = bushing_request(budget, adaptive=False)
+    grown = PlanRequest(**{**request.model_dump(), "candidates": {"count": 30, "seed": 2}})
+    real_trace, real_rows = pipeline.trace_counts, pipeline.rows_of
+
+    def slow_trace(*args, **kwargs):
+        return replace(real_trace(*args, **kwargs), seconds=budget / 8)  # 30 views: 1/8 limit
+
+    monkeypatch.setattr(pipeline, "trace_counts", slow_trace)
+    assert not pipeline.plan(part, grown).adaptive  # a round of 160 views: 5/6 of the limit
+    monkeypatch.setattr(pipeline, "trace_counts", real_trace)
+
+    slept: list[bool] = []
+
+    def slow_rows(*args, **kwargs):  # the first grouping (the rounds'), slowly
+        if not slept:
+            time.sleep(budget * pipeline.ADAPT_SHARE)
+            slept.append(True)
+        return real_rows(*args, **kwargs)
+
+    monkeypatch.setattr(pipeline, "rows_of", slow_rows)
+    assert not pipeline.plan(part, grown).adaptive
+
+
 def test_a_patch_is_one_connected_piece_of_surface():
     """Two coplanar 3 × 3 mm squares 1 mm apart face the same way within one 10 mm patch: by
     place and normal alone they share a row (the outer face and a hole's floor would); given

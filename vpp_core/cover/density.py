@@ -215,16 +215,6 @@ def reach(indptr: np.ndarray, share: np.ndarray) -> np.ndarray:
     return out
 
 
-def patch_coverage(
-    counts: sp.sparray, patches: Patches, resolution_mm: np.ndarray, cameras: Cameras | None
-) -> sp.csr_array:
-    """S (P, N) of the patches from the face R `counts` (M, N), stray entries dropped, for the
-    patches' targets (P,) mm, with the sampled share where the `cameras` are given."""
-    r, share = _patch_counts(counts, patches, cameras)
-    data = s_entries(r, patches.areas, resolution_mm, share)
-    return sp.csr_array((data, r.indices, r.indptr), shape=r.shape)
-
-
 def _patch_counts(
     counts: sp.sparray, patches: Patches, cameras: Cameras | None
 ) -> tuple[sp.csr_array, np.ndarray | None]:

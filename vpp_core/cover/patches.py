@@ -124,9 +124,7 @@ def make_patches(
     radius = edge_mm / 2 if smooth_mm is None else smooth_mm
     of_face = np.full(len(centres), -1, dtype=np.int64)
     smooth = np.zeros_like(normals)
-    smooth[counted] = normals[counted]
-    for _ in range(SMOOTH_PASSES):
-        smooth[counted] = smoothed(centres[counted], smooth[counted], areas[counted], radius)
+    smooth[counted] = smoothed(centres[counted], normals[counted], areas[counted], radius)
     bins = np.argmax(smooth @ DIRECTIONS.T, axis=1)
     if groups is not None:
         bins = bins + len(DIRECTIONS) * np.asarray(groups, dtype=np.int64)
@@ -136,7 +134,7 @@ def make_patches(
         faces = np.flatnonzero(counted & (bins == b))
         edge = float(edges[min(b // len(DIRECTIONS), len(edges) - 1)])
         seeds = _seeds(centres[faces], areas[faces], SEED_SPACING * edge)
-        _, nearest = cKDTree(centres[faces][seeds]).query(centres[faces])
+        _, nearest = cKDTree(centres[faces][seeds]).query(centres[faces], workers=-1)
         of_face[faces] = next_id + np.asarray(nearest, dtype=np.int64)
         next_id += len(seeds)
     if corners is not None:
@@ -183,27 +181,44 @@ def connected_pieces(corners: np.ndarray, labels: np.ndarray) -> np.ndarray:
 
 
 def smoothed(
-    centres: np.ndarray, normals: np.ndarray, areas: np.ndarray, radius: float
+    centres: np.ndarray,
+    normals: np.ndarray,
+    areas: np.ndarray,
+    radius: float,
+    passes: int = SMOOTH_PASSES,
 ) -> np.ndarray:
     """(M, 3) normals averaged (area-weighted) over the SMOOTH_NEIGHBOURS nearest faces within
-    `radius` mm whose normal points to the same side; a face's own normal where they cancel."""
+    `radius` mm whose normal points to the same side, `passes` times (each pass averages the
+    last one's); a face keeps its normal where they cancel. The neighbours are found once."""
     k = min(SMOOTH_NEIGHBOURS, len(centres))
-    dist, idx = cKDTree(centres).query(centres, k=k, distance_upper_bound=radius)
+    dist, idx = cKDTree(centres).query(centres, k=k, distance_upper_bound=radius, workers=-1)
     found = np.isfinite(dist)
     idx = np.where(found, idx, np.arange(len(centres))[:, None])
+    weights = found * areas[idx]
+    for _ in range(passes):
+        normals = _averaged(normals, idx, weights, 1e-9 * areas.max())
+    return normals
+
+
+def _averaged(normals: np.ndarray, idx: np.ndarray, weights: np.ndarray, tiny: float) -> np.ndarray:
+    """(M, 3) one smoothing pass: each normal the `weights`-weighted (M, k) mean of its
+    neighbours' `idx` (M, k) that point to its side; its own where the sum's norm is below
+    `tiny`."""
     near = normals[idx]
-    keep = found & (np.einsum("mkj,mj->mk", near, normals) > 0)
-    total = np.einsum("mk,mkj->mj", keep * areas[idx], near) + normals * 1e-12
+    keep = np.einsum("mkj,mj->mk", near, normals) > 0
+    total = np.einsum("mk,mkj->mj", keep * weights, near) + normals * 1e-12
     norm = np.linalg.norm(total, axis=1, keepdims=True)
-    return np.where(norm > 1e-9 * areas.max(), total / np.maximum(norm, 1e-300), normals)
+    return np.where(norm > tiny, total / np.maximum(norm, 1e-300), normals)
 
 
 def _seeds(centres: np.ndarray, areas: np.ndarray, edge_mm: float) -> np.ndarray:
     """Indices of face centres at least `edge_mm` apart, largest faces first: the largest face
     of each cube of side edge/2, thinned greedily."""
     cells = np.floor((centres - centres.min(axis=0)) / (edge_mm / 2)).astype(np.int64)
+    span = cells.max(axis=0) + 1
+    key = (cells[:, 0] * span[1] + cells[:, 1]) * span[2] + cells[:, 2]  # the cube's number
     order = np.argsort(-areas, kind="stable")
-    _, first = np.unique(cells[order], axis=0, return_index=True)
+    _, first = np.unique(key[order], return_index=True)
     picks = order[np.sort(first)]  # one per cube, the larger faces' cubes first
     pairs = cKDTree(centres[picks]).query_pairs(edge_mm, output_type="ndarray").reshape(-1, 2)
     lo, hi = pairs.min(axis=1), pairs.max(axis=1)

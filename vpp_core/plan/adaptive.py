@@ -86,8 +86,8 @@ def adapt(
     rows of `model_of` on `part` (the faces or elements its ids name; `backend` over it) and
     tracing new views with `trace_of`; new cameras only where `allowed` (the setup's
     vpp_core.cell.reach predicate) lets them be, and only those `keep` keeps (the setup's
-    robot: vpp_core.plan.robotplan); no round starts after `deadline` (time.perf_counter()
-    seconds)."""
+    robot: vpp_core.plan.robotplan); no round starts that its tracing (`round_s`) would end
+    after `deadline` (time.perf_counter() seconds)."""
     spec = request.candidates
     if not isinstance(spec, CandidateGenerator) or not spec.adaptive:
         return Pool(views, trace, [])
@@ -96,7 +96,7 @@ def adapt(
     before = views, trace  # the pool before the last round's candidates
     for k in range(ROUNDS):
         start = time.perf_counter()
-        if start >= deadline:
+        if start + round_s(trace, len(views)) >= deadline:
             break
         model = model_of(views, trace)
         cover = solve(model, quick)
@@ -120,6 +120,12 @@ def adapt(
         trace = join_traces([trace, added], trace.seconds + added.seconds)
         views = _concat(views, new)
     return Pool(views, trace, rounds)
+
+
+def round_s(trace: Trace, pool: int) -> float:
+    """Wall seconds a round's tracing is expected to take: its most new candidates
+    (MAX_TARGETS · AIM_VIEWS) at the rate the pool's `pool` candidates were traced."""
+    return trace.seconds / max(pool, 1) * MAX_TARGETS * AIM_VIEWS
 
 
 def _round(

@@ -23,8 +23,6 @@ from vpp_core.cover.density import (
     CoverModel,
     cover_model,
     meets,
-    patch_coverage,
-    patch_resolution,
 )
 from vpp_core.cover.partial import PartialCover, solve_partial
 from vpp_core.cover.patches import (
@@ -355,6 +353,7 @@ def finish(
         doc = document(
             part, request, views, info, trace, model, cover, clock.timings, tour, targets
         )
+        doc.cover_rows = _cover_rows(part, rows, own, model, trace, cover.result.selected)
     with clock.stage("diagnostics"):
         doc.diagnostics = diagnose(
             part,
@@ -369,8 +368,6 @@ def finish(
         )
     doc.timings_s = clock.timings
     doc.rays.reused = reused
-    chosen = np.array([v.id for v in doc.viewpoints], dtype=np.int64)
-    doc.cover_rows = _cover_rows(part, rows, model, trace, chosen, cameras)
     doc.adaptive = list(rounds)
     if cell is not None:
         free = request.model_copy(update={"setup": None})
@@ -402,7 +399,9 @@ def grow(
     the rounds; unchanged when the request does not ask for them. `backend`: over the part,
     or over its elements where `trace` is of them (made here when None). New cameras only where
     the setup (`cell`, else the request's) lets them be. `spent_s`: wall seconds the plan
-    spent before (no round starts past ADAPT_SHARE of the time limit)."""
+    spent before (no round starts whose tracing would end past ADAPT_SHARE of the time
+    limit, the rows' grouping here counted)."""
+    began = time.perf_counter()  # the rows' grouping counts in the rounds' budget
     cell = cell_of(request, cell)
     rows = rows_of(part, request, trace, cell)
     split = rows.elements
@@ -423,7 +422,7 @@ def grow(
 
     backend = backend or setup_backend(geometry, request, cell, trace.backend)
     tally: Counter[str] = Counter()  # the robot's drops in the rounds
-    deadline = time.perf_counter() + ADAPT_SHARE * request.solver.time_limit_s - spent_s
+    deadline = began + ADAPT_SHARE * request.solver.time_limit_s - spent_s
     pool = adapt(
         geometry,
         request,
@@ -443,33 +442,37 @@ def grow(
 
 
 def _cover_rows(
-    part: Part, rows: Rows, model: CoverModel, trace: Trace, chosen: np.ndarray, cameras: Cameras
+    part: Part, rows: Rows, own: CoverModel, model: CoverModel, trace: Trace, chosen: np.ndarray
 ) -> CoverRows:
     """What the cover's rows were, what the plan samples of the patches' area (met: Σ S ≥ 1
     over the chosen views, S as the cover's rows count it), and the faces hit only by rays
-    too few to sample them (`model` in face ids)."""
+    too few to sample them: `own` the cover's model in the rows' ids, `model` in face ids."""
     patches = rows.patches
     if patches is None:
         return CoverRows(kind="faces", count=int(part.counted.sum()))
     unsampled = np.setdiff1d(model.uncoverable, spec_uncoverable(part, trace))
-    res = patch_resolution(patches, rows.targets.resolution_mm)
-    s = patch_coverage(rows.counts(trace), patches, res, cameras)
+    patch_of_row = np.zeros(own.matrix.shape[0], dtype=np.int64)
+    patch_of_row[own.face_row] = patches.of_face[own.faces]
+    mine = sp.csr_array(own.matrix[:, chosen])
+    met = np.zeros(patches.count, dtype=bool)  # a row short of δ̄ holds V: never met
+    met[patch_of_row] = own.density_rows & meets(mine.sum(axis=1), 1.0)
+    sampled = np.zeros(patches.count, dtype=bool)
+    sampled[patch_of_row] = np.diff(mine.indptr) > 0
+    by_any = np.zeros(patches.count, dtype=bool)
+    by_any[patch_of_row] = True
     total = patches.areas.sum()
-    sampled_by_any = np.diff(s.indptr) > 0
-    mine = sp.csr_array(s[:, chosen])
-    met = meets(mine.sum(axis=1), 1.0)
     recessed = np.zeros(patches.count, dtype=bool) if rows.recessed is None else rows.recessed
     return CoverRows(
         kind="patches",
         count=patches.count,
         edge_mm=patches.edge_mm,
         element_mm2=None if rows.elements is None else rows.elements.max_area_mm2,
-        sampled_area=float(patches.areas[np.diff(mine.indptr) > 0].sum() / total),
-        max_sampled_area=float(patches.areas[sampled_by_any].sum() / total),
+        sampled_area=float(patches.areas[sampled].sum() / total),
+        max_sampled_area=float(patches.areas[by_any].sum() / total),
         met_area=float(patches.areas[met].sum() / total),
         patch_of_face=patches.of_face.tolist(),
         unsampled=_uncoverable(part, unsampled),
-        recessed=_uncoverable(part, _faces_of_patches(rows, recessed & sampled_by_any & ~met)),
+        recessed=_uncoverable(part, _faces_of_patches(rows, recessed & by_any & ~met)),
         recessed_area=float(patches.areas[recessed].sum() / total),
     )
 

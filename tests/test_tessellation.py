@@ -86,7 +86,8 @@ def test_default_counts_agree_across_tessellations(two_tessellations, formulatio
 @pytest.mark.slow
 def test_tilted_candidates_keep_plate_holes_counts_within_one_across_tessellations():
     """plate_holes.STL against a 4 mm remesh: along the normals 5 and 8 views at F = 0.999
-    (docs/cad-meshes.md); with candidates tilted up to 30°, 5 and 6."""
+    (docs/cad-meshes.md); with candidates tilted up to 30°, 5 and 6 (proven in 9 and 32 s on
+    the development machine; the limit is the whole plan's, so it leaves a slower one room)."""
     pytest.importorskip("pymeshlab")
     from vpp_core.mesh.remesh import isotropic_remesh
 
@@ -97,7 +98,7 @@ def test_tilted_candidates_keep_plate_holes_counts_within_one_across_tessellatio
         profile="paper",
         target=Target(formulation="visibility", min_coverage=MIN_COVERAGE),
         candidates=CandidateGenerator(count=500, tilt_deg=30.0),
-        solver=SolverSettings(time_limit_s=15),  # 5 and 6 by then; proven: 9 s and 32 s
+        solver=SolverSettings(time_limit_s=30),  # 15 s: 5 / 6 here, 5 / 7 on a 1.8x slower CPU
     )
     counts = partial_view_counts([(cad, request), (iso, request)])
     assert abs(counts[0] - counts[1]) <= 1, counts

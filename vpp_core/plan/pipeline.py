@@ -35,7 +35,7 @@ from vpp_core.cover.patches import (
 )
 from vpp_core.errors import LimitError
 from vpp_core.mesh.part import Part
-from vpp_core.mesh.refine import Elements, elements, refined_faces
+from vpp_core.mesh.refine import Elements, elements
 from vpp_core.plan.adaptive import adapt
 from vpp_core.plan.cellplan import (
     allowed,
@@ -563,17 +563,21 @@ def element_area(part: Part, resolution_mm: float) -> float:
     doubled until the split gives at most MAX_ELEMENTS (or the part's own faces)."""
     area = float(part.areas[part.counted].sum())
     limit = patch_edge(resolution_mm, area) ** 2 / ELEMENTS_PER_PATCH
-    bound = max(MAX_ELEMENTS, part.n_faces)
-    while refined_faces(part, limit, cap=bound + 1) > bound:
-        limit *= 2
-    return limit
+    while True:
+        try:
+            _elements(part, limit)  # the split that fits is cached for elements_of
+        except LimitError:
+            limit *= 2
+        else:
+            return limit
 
 
 @lru_cache(maxsize=2)
 def _elements(part: Part, max_area_mm2: float) -> Elements:
-    """`part` split into elements of at most `max_area_mm2` (cached: the trace, the adaptive
-    rounds and the final cover ask for the same)."""
-    return elements(part, max_area_mm2)
+    """`part` split into elements of at most `max_area_mm2`, at most MAX_ELEMENTS (or the
+    part's own faces; LimitError past them, found while splitting), cached: element_area,
+    the trace, the adaptive rounds and the final cover ask for the same."""
+    return elements(part, max_area_mm2, max_faces=max(MAX_ELEMENTS, part.n_faces))
 
 
 @lru_cache(maxsize=2)

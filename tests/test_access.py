@@ -65,19 +65,22 @@ def independent_recessed(
     early (the rule of vpp_core.cover.access, written out)."""
     mesh = trimesh.Trimesh(part.vertices, part.faces, process=False)
     cone = cone_directions(DIRECTIONS, max_incidence_deg)
-    best = np.zeros(of_face.max() + 1, dtype=int)
-    for p in range(len(best)):
+    tried = []  # (patch, face, side) of every tried face and side
+    for p in range(of_face.max() + 1):
         faces = np.flatnonzero(of_face == p)
         for face in faces[(np.arange(min(4, len(faces))) * len(faces)) // 4]:
-            centre = part.vertices[part.faces[face]].mean(axis=0)
-            for side in (1.0, -1.0):
-                n = side * part.normals[face]
-                u = np.cross(n, [1.0, 0, 0] if abs(n[0]) < 0.9 else [0, 1.0, 0])
-                u /= np.linalg.norm(u)
-                rays = cone @ np.array([u, np.cross(n, u), n])
-                origins = np.tile(centre + 1e-3 * n, (len(rays), 1))
-                hit = mesh.ray.intersects_any(origins, rays)
-                best[p] = max(best[p], int((~hit).sum()))
+            tried += [(p, face, 1.0), (p, face, -1.0)]
+    patch, face, side = (np.array(column) for column in zip(*tried, strict=True))
+    n = side[:, None] * part.normals[face]  # (T, 3)
+    u = np.cross(n, np.where(np.abs(n[:, :1]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]]))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    frames = np.stack([u, np.cross(n, u), n], axis=1)  # (T, 3, 3): rows u, v, n
+    rays = np.einsum("kj,tjd->tkd", cone, frames).reshape(-1, 3)  # (T·K, 3)
+    centres = part.vertices[part.faces[face]].mean(axis=1) + 1e-3 * n
+    origins = np.repeat(centres, len(cone), axis=0)
+    hit = mesh.ray.intersects_any(origins, rays).reshape(len(face), len(cone))
+    best = np.zeros(of_face.max() + 1, dtype=int)
+    np.maximum.at(best, patch, (~hit).sum(axis=1))
     return best < open_min
 
 

@@ -169,8 +169,11 @@ def test_the_child_ends_when_its_parent_is_killed() -> None:
 
 
 def test_time_limit_holds_while_the_search_compiles(tmp_path: Path) -> None:
-    # A machine's first solve compiles the row-weighting search (about 4 s): that compile
-    # runs in a thread and must not push the solve past its limit.
+    # A machine's first solve compiles the row-weighting search (about 4 s, 7 s on a slow
+    # machine): that compile runs in a thread and must not push the solve past its limit. The
+    # same solve with the compiled search in its cache is the reference: on a slow or busy
+    # machine both overrun 1.5 s alike (HiGHS's LP keeps its limit only to ~0.3 s), so an
+    # absolute wall failed there (CI: 2.42 s) while a compile that blocked adds seconds.
     code = textwrap.dedent(
         """
         from vpp_core.samples import window_cover
@@ -181,10 +184,18 @@ def test_time_limit_holds_while_the_search_compiles(tmp_path: Path) -> None:
         """
     )
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)}  # an empty cache: compile from scratch
-    out = subprocess.run(
-        [sys.executable, "-c", code], cwd=ROOT, env=env, capture_output=True, text=True, check=True
-    )
-    assert float(out.stdout.split()[-1]) < wall(1.5)
+
+    def solve_s() -> float:
+        out = subprocess.run(
+            [sys.executable, "-c", code], cwd=ROOT, env=env, capture_output=True, text=True,
+            check=True,
+        )  # fmt: skip
+        return float(out.stdout.split()[-1])
+
+    compiling = solve_s()
+    assert any(tmp_path.rglob("*.nbi")), "the first solve compiled nothing into its cache"
+    cached = solve_s()
+    assert compiling < max(cached, 1.5) + 1.0
 
 
 def test_the_highs_banner_is_shown_once_per_process(tmp_path: Path) -> None:

@@ -109,19 +109,20 @@ def pinhole_share(
 ) -> np.ndarray:
     """(P, N) share of each patch its rays sample: min(1, R / (ρ A)), ρ the pixels per mm² of
     the patch's plane at its centre, from projecting a small square on it into the image."""
+    n = np.asarray(normals, dtype=np.float64)
+    t1 = np.cross(n, np.where(np.abs(n[:, :1]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]]))
+    t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
+    t2 = np.cross(n, t1)
+    h = 1e-3
+    corners = centres[:, None, :] + h * np.stack([np.zeros_like(t1), t1, t2], axis=1)  # (P,3,3)
     out = np.ones_like(rp)
     for j, m in enumerate(c2w):
-        for p in np.flatnonzero(rp[:, j] > 0):
-            t1 = np.cross(normals[p], [1.0, 0, 0] if abs(normals[p][0]) < 0.9 else [0, 1.0, 0])
-            t1 /= np.linalg.norm(t1)
-            t2 = np.cross(normals[p], t1)
-            h = 1e-3
-            corners = centres[p] + h * np.array([[0, 0, 0], t1, t2])
-            cam = (corners - m[:3, 3]) @ m[:3, :3]  # camera frame: x, y, z columns
-            px = np.column_stack([sensor.fx * cam[:, 0], sensor.fy * cam[:, 1]]) / cam[:, 2:]
-            e1, e2 = px[1] - px[0], px[2] - px[0]
-            rho = abs(e1[0] * e2[1] - e1[1] * e2[0]) / h**2
-            out[p, j] = min(1.0, rp[p, j] / (rho * ap[p]))
+        p = np.flatnonzero(rp[:, j] > 0)
+        cam = (corners[p] - m[:3, 3]) @ m[:3, :3]  # (p, 3 corners, xyz in the camera frame)
+        px = np.stack([sensor.fx * cam[..., 0], sensor.fy * cam[..., 1]], -1) / cam[..., 2:]
+        e1, e2 = px[:, 1] - px[:, 0], px[:, 2] - px[:, 0]
+        rho = np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]) / h**2
+        out[p, j] = np.minimum(1.0, rp[p, j] / (rho * ap[p]))
     return out
 
 

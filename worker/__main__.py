@@ -46,7 +46,12 @@ class VppWorker(Worker):
     """Whether a stop was asked for (SIGTERM, SIGINT): then an end of `work` is no error."""
 
     def request_stop(self, signum: int, frame: FrameType | None) -> None:
+        """RQ's warm stop, which raises StopRequested from the signal handler when idle, and
+        also the flag its loop checks: a signal that lands inside a library's `except
+        Exception: pass` (redis-py has several) lost the exception, and the worker, idle,
+        outlived its parent (seen once in the suite)."""
         self.stopping = True
+        self._stop_requested = True
         super().request_stop(signum, frame)  # type: ignore[no-untyped-call]
 
     def run_maintenance_tasks(self) -> None:

@@ -90,3 +90,37 @@ def test_a_failed_warm_up_is_logged_and_leaves_the_plan_to_compile(monkeypatch, 
         assert warming.warm("raster") >= 0.0
     assert "cache index half written" in caplog.text
     assert "raster" not in warming._warmed
+
+
+def test_cameras_given_as_matrices_use_the_warmed_kernels() -> None:
+    """numba compiles a kernel again for each new argument layout: cameras whose positions were
+    a 4 × 4 matrix's column (strided; a turntable's or an explicit pose's) compiled the raster
+    kernels a second time, 22 s of a fresh install's first turntable plan. Traced from such
+    cameras, no kernel of the tracers gains a signature that the warm-up did not give it."""
+    import numpy as np
+
+    from vpp_core.camera.pose import make_viewpoints
+    from vpp_core.camera.sensor import Sensor
+    from vpp_core.trace import packets, pixels, raster
+    from vpp_core.trace.raytrace import make_backend, trace_counts
+
+    kernels = [
+        k
+        for module in (raster, packets, pixels)
+        for k in vars(module).values()
+        if hasattr(k, "signatures") and k.__module__ == module.__name__
+    ]
+    assert len(kernels) >= 5
+    for backend in ("raster", "packets"):
+        warm_module.trace_tiny(backend)
+    warmed = {k: set(k.signatures) for k in kernels}
+    m = np.tile(np.eye(4), (2, 1, 1))
+    m[:, :3, 3] = [[0.0, 0.0, -500.0], [0.0, 10.0, -480.0]]
+    m[:, :3, 2] = [0.0, 0.0, 1.0]  # camera z: the gaze
+    views = make_viewpoints(m[:, :3, 3], m[:, :3, 2], -m[:, :3, 1])
+    part, sensor = warm_module.tetrahedron(), Sensor(width_px=32, height_px=24)
+    for backend in ("raster", "packets"):
+        trace_counts(part, sensor, views, backend=make_backend(part, backend), threads=1)
+    dense = raster.RasterBackend(part, max_faces_per_pixel=0.0)
+    trace_counts(part, sensor, views, backend=dense, threads=1)
+    assert {k: set(k.signatures) for k in kernels} == warmed

@@ -213,7 +213,7 @@ class PacketBackend:
         counters = self._take_counters()
         out = trace_window(
             *self._call(self._tiles),
-            np.asarray(block.position, dtype=np.float32),
+            np.ascontiguousarray(block.position, dtype=np.float32),
             np.ascontiguousarray(block.rotation, dtype=np.float32),
             np.ascontiguousarray(block.rotation, dtype=np.float64),
             *counters,

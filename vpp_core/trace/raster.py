@@ -92,7 +92,7 @@ class RasterBackend:
             self._vertices,
             self._faces,
             self._labels,
-            np.asarray(block.position, dtype=np.float64),
+            np.ascontiguousarray(block.position, dtype=np.float64),  # one signature
             np.ascontiguousarray(block.rotation, dtype=np.float64),
             sensor.pixel_x,
             sensor.pixel_y,

@@ -95,8 +95,11 @@ def test_a_failed_warm_up_is_logged_and_leaves_the_plan_to_compile(monkeypatch, 
 def test_cameras_given_as_matrices_use_the_warmed_kernels() -> None:
     """numba compiles a kernel again for each new argument layout: cameras whose positions were
     a 4 × 4 matrix's column (strided; a turntable's or an explicit pose's) compiled the raster
-    kernels a second time, 22 s of a fresh install's first turntable plan. Traced from such
-    cameras, no kernel of the tracers gains a signature that the warm-up did not give it."""
+    kernels a second time, 22 s of a fresh install's first turntable plan; so did a part with
+    writable normals. Traced from such cameras and such a part, no kernel of the tracers gains a
+    signature that the warm-up did not give it."""
+    import dataclasses
+
     import numpy as np
 
     from vpp_core.camera.pose import make_viewpoints
@@ -123,4 +126,7 @@ def test_cameras_given_as_matrices_use_the_warmed_kernels() -> None:
         trace_counts(part, sensor, views, backend=make_backend(part, backend), threads=1)
     dense = raster.RasterBackend(part, max_faces_per_pixel=0.0)
     trace_counts(part, sensor, views, backend=dense, threads=1)
+    # a Part's arrays are read-only, except where one was made otherwise (the cell's scene)
+    writable = dataclasses.replace(part, normals=np.array(part.normals))
+    trace_counts(writable, sensor, views, backend=make_backend(writable, "raster"), threads=1)
     assert {k: set(k.signatures) for k in kernels} == warmed

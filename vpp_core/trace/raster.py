@@ -52,7 +52,9 @@ class RasterBackend:
     def __init__(self, part: Part, max_faces_per_pixel: float = MAX_FACES_PER_PIXEL) -> None:
         self._part, self._max_faces_per_pixel = part, max_faces_per_pixel
         self._labels, self._vertices, self._faces = spatial_order(part.vertices, part.faces)
-        self._normals = np.ascontiguousarray(part.normals, dtype=np.float64)
+        # a copy of its own: numba compiles a kernel again for a read-only argument, and a
+        # Part's normals are read-only or not depending on how it was made
+        self._normals = np.array(part.normals, dtype=np.float64, order="C")
         self._packets: PacketBackend | None = None
 
     @property

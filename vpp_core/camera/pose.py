@@ -55,9 +55,7 @@ def make_viewpoints(
     positions: np.ndarray, gazes: np.ndarray, ups: np.ndarray | None = None
 ) -> Viewpoints:
     """Validate and orthonormalise poses; `ups` rows may be NaN to ask for the default rule."""
-    # contiguous rows: a strided position (a 4 × 4 matrix's column) made numba compile the
-    # tracers again for that layout, 22 s on a fresh install (a turntable plan)
-    positions = np.ascontiguousarray(np.asarray(positions, dtype=np.float64).reshape(-1, 3))
+    positions = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
     gazes = np.asarray(gazes, dtype=np.float64).reshape(-1, 3)
     if len(positions) != len(gazes):
         raise ViewpointError(f"{len(positions)} positions but {len(gazes)} gazes")

@@ -110,13 +110,10 @@ def _split(
     return bisect(part.vertices, part.faces, k, max_edge_mm, cap)
 
 
-def refined_faces(
-    part: Part, max_area_mm2: float, max_edge_mm: float | None = None, cap: int | None = None
-) -> int:
-    """How many faces `refine(part, max_area_mm2, max_edge_mm=...)` gives; the count stops
-    growing past `cap` faces."""
+def refined_faces(part: Part, max_area_mm2: float, max_edge_mm: float | None = None) -> int:
+    """How many faces `refine(part, max_area_mm2, max_edge_mm=...)` gives."""
     edge = _edge_limit(max_area_mm2, max_edge_mm)
-    return len(_split(part, max_area_mm2, edge, cap)[1])
+    return len(_split(part, max_area_mm2, edge)[1])
 
 
 def _edges2(tri: np.ndarray) -> np.ndarray:

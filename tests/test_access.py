@@ -57,6 +57,13 @@ def housing(hole_mm: float) -> Part:
     return part_from_arrays(vertices, faces)
 
 
+def tangents(normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(K, 3) unit u ⟂ n (n × x, or n × y where n is near x) and v = n × u, per unit normal."""
+    u = np.cross(normals, np.where(np.abs(normals[:, :1]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]]))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    return u, np.cross(normals, u)
+
+
 def independent_recessed(
     part: Part, of_face: np.ndarray, max_incidence_deg: float, open_min: int = OPEN_MIN
 ) -> np.ndarray:
@@ -72,9 +79,7 @@ def independent_recessed(
             tried += [(p, face, 1.0), (p, face, -1.0)]
     patch, face, side = (np.array(column) for column in zip(*tried, strict=True))
     n = side[:, None] * part.normals[face]  # (T, 3)
-    u = np.cross(n, np.where(np.abs(n[:, :1]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]]))
-    u /= np.linalg.norm(u, axis=1, keepdims=True)
-    frames = np.stack([u, np.cross(n, u), n], axis=1)  # (T, 3, 3): rows u, v, n
+    frames = np.stack([*tangents(n), n], axis=1)  # (T, 3, 3): rows u, v, n
     rays = np.einsum("kj,tjd->tkd", cone, frames).reshape(-1, 3)  # (T·K, 3)
     centres = part.vertices[part.faces[face]].mean(axis=1) + 1e-3 * n
     origins = np.repeat(centres, len(cone), axis=0)

@@ -16,7 +16,7 @@ import trimesh
 from scipy.optimize import Bounds, LinearConstraint, milp
 
 from tests.pixelrays import camera_rays, valid_counts
-from tests.test_access import OPEN_MIN, independent_recessed
+from tests.test_access import OPEN_MIN, independent_recessed, tangents
 from vpp_core.camera.sensor import Sensor
 from vpp_core.mesh.part import Part, part_from_arrays
 from vpp_core.plan.document import CandidateGenerator, PlanDocument, PlanRequest, Target
@@ -109,10 +109,7 @@ def pinhole_share(
 ) -> np.ndarray:
     """(P, N) share of each patch its rays sample: min(1, R / (ρ A)), ρ the pixels per mm² of
     the patch's plane at its centre, from projecting a small square on it into the image."""
-    n = np.asarray(normals, dtype=np.float64)
-    t1 = np.cross(n, np.where(np.abs(n[:, :1]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]]))
-    t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
-    t2 = np.cross(n, t1)
+    t1, t2 = tangents(np.asarray(normals, dtype=np.float64))
     h = 1e-3
     corners = centres[:, None, :] + h * np.stack([np.zeros_like(t1), t1, t2], axis=1)  # (P,3,3)
     out = np.ones_like(rp)

@@ -226,6 +226,13 @@ def _plan_options(p: argparse.ArgumentParser) -> None:
         "(default profile: on, paper: off)",
     )
     p.add_argument(
+        "--sphere",
+        type=int,
+        metavar="N",
+        help="trace N views on spheres around the part and add those that see surface no "
+        "generated candidate samples (default profile 200, paper 0; 0: none)",
+    )
+    p.add_argument(
         "--standoff",
         type=float,
         metavar="MM",
@@ -560,6 +567,7 @@ def _request(args: argparse.Namespace) -> PlanRequest:
                 retry_tilt_deg=args.retry_tilt,
                 standoff_mm=args.standoff,
                 adaptive=args.adaptive,
+                sphere=args.sphere,
             )
         )
         return PlanRequest(

@@ -146,6 +146,59 @@ def test_view_sphere_directions_are_even_and_look_at_the_part():
     assert np.allclose(np.einsum("ij,ij->i", to_centre, views.gazes), 1)
 
 
+def toy_model(areas: list[float], entries: list[tuple[int, int]]):
+    """A CoverModel with one face per row (rows' areas `areas`, mm²) and columns sampling rows
+    as (row, col) `entries`."""
+    from vpp_core.cover.density import CoverModel
+
+    rows, cols = zip(*entries, strict=True)
+    shape = (len(areas), max(cols) + 1)
+    matrix = sp.csr_array((np.full(len(entries), 0.5), (rows, cols)), shape=shape)
+    ids = np.arange(len(areas))
+    return CoverModel(matrix, ids, ids, np.ones(len(areas), bool), ids[:0], np.array(areas))
+
+
+def test_sphere_views_join_for_the_rows_the_pool_does_not_sample_greedily():
+    from vpp_core.plan.spherereach import new_reach
+
+    # the pool (columns 0-1) samples rows 0-1; rows 2-4 are new; median row area 10 mm²
+    areas = [10.0, 10.0, 10.0, 12.0, 3.0]
+    pool = [(0, 0), (1, 1)]
+    # new column 2 sees a known row only, 3 row 2, 4 rows 2-3, 5 row 4 alone (3 mm² < 10)
+    sphere = [(0, 2), (2, 3), (2, 4), (3, 4), (4, 5)]
+    assert new_reach(toy_model(areas, pool + sphere), 2).tolist() == [2]  # column 4: 22 mm²
+    # once column 4 is in, column 3 adds nothing; column 5 joins for 30 mm², first
+    bigger = toy_model([10.0, 10.0, 10.0, 12.0, 30.0], pool + sphere)
+    assert new_reach(bigger, 2).tolist() == [2, 3]
+    everything = [(0, 0), (1, 1), (2, 1), (3, 0), (4, 0)]  # a pool that samples every row
+    assert new_reach(toy_model(areas, everything + sphere), 2).size == 0
+
+
+def test_a_default_plans_pool_gains_the_sphere_views_that_see_what_it_does_not():
+    # six generated candidates leave most of the bushing unseen: the sphere views that sample
+    # surface none of them samples join, after them and before the adaptive rounds' views
+    from vpp_core.plan.pipeline import explicit_viewpoints, plan
+
+    part = load_mesh(sample_stl(), "stl")
+    spec = CandidateGenerator(count=6, seed=2, adaptive=False)
+    request = PlanRequest(sensor=SMALL, target=Target(resolution_mm=1.2), candidates=spec)
+    doc = plan(part, request)
+    info = doc.candidate_info
+    assert info.sphere_traced == 200 and 0 < info.sphere < 200
+    assert len(doc.candidates) == info.generated + info.sphere
+    counts = trace_counts(part, SMALL, explicit_viewpoints(doc.candidates)).counts.toarray()
+    hit = counts > 0
+    known = hit[:, : info.generated].any(axis=1)
+    for j in range(info.generated, len(doc.candidates)):  # each samples faces the pool does not
+        assert part.areas[hit[:, j] & ~known].sum() > 0, j
+    none = plan(
+        part, request.model_copy(update={"candidates": spec.model_copy(update={"sphere": 0})})
+    )
+    assert none.candidate_info.sphere == none.candidate_info.sphere_traced == 0
+    assert len(none.candidates) == info.generated
+    assert doc.metrics.coverage.max_area > none.metrics.coverage.max_area
+
+
 def bushing_request(time_limit_s: float, adaptive: bool = True) -> PlanRequest:
     """A plan of the sample bushing under SMALL at 1.2 mm from 30 candidates (seed 2)."""
     return PlanRequest(
@@ -163,14 +216,15 @@ def test_adaptive_rounds_add_traced_candidates_and_are_reported():
     request = bushing_request(2)
     doc = plan(part, request)
     info = doc.candidate_info
-    assert doc.adaptive and doc.adaptive[0].candidates == info.generated
-    assert len(doc.candidates) == info.generated + info.added
+    assert doc.adaptive and doc.adaptive[0].candidates == info.generated + info.sphere
+    assert len(doc.candidates) == info.generated + info.sphere + info.added
     assert info.added == sum(r.added - r.removed for r in doc.adaptive)
     for before, after in zip(doc.adaptive, doc.adaptive[1:], strict=False):
         assert after.candidates == before.candidates + before.added
     fixed = CandidateGenerator(count=30, seed=2, adaptive=False)
     off = plan(part, PlanRequest(**{**request.model_dump(), "candidates": fixed.model_dump()}))
-    assert not off.adaptive and len(off.candidates) == info.generated
+    assert not off.adaptive
+    assert len(off.candidates) == off.candidate_info.generated + off.candidate_info.sphere
 
 
 @pytest.mark.parametrize("last", [12, 9])
@@ -198,7 +252,8 @@ def test_a_round_whose_candidates_raise_the_quick_count_is_undone(monkeypatch, l
     assert third.candidates == pools[2] == pools[1] + second.added
     kept = pools[1] if last > 9 else pools[2]
     assert third.removed == (second.added if last > 9 else 0)
-    assert doc.candidate_info.added == kept - doc.candidate_info.generated
+    info = doc.candidate_info
+    assert info.added == kept - info.generated - info.sphere
     assert len(doc.candidates) == kept
     assert doc.viewpoints and max(v.id for v in doc.viewpoints) < kept
 

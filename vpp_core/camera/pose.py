@@ -50,6 +50,14 @@ class Viewpoints:
         """Subset (or reorder) by integer index."""
         return Viewpoints(self.positions[index], self.gazes[index], self.ups[index])
 
+    def then(self, other: Viewpoints) -> Viewpoints:
+        """These viewpoints followed by `other`'s."""
+        return Viewpoints(
+            np.vstack([self.positions, other.positions]),
+            np.vstack([self.gazes, other.gazes]),
+            np.vstack([self.ups, other.ups]),
+        )
+
 
 def make_viewpoints(
     positions: np.ndarray, gazes: np.ndarray, ups: np.ndarray | None = None

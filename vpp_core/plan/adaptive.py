@@ -118,7 +118,7 @@ def adapt(
         added = trace_of(new)
         before = views, trace
         trace = join_traces([trace, added], trace.seconds + added.seconds)
-        views = _concat(views, new)
+        views = views.then(new)
     return Pool(views, trace, rounds)
 
 
@@ -206,12 +206,3 @@ def row_frames(part: Part, model: CoverModel, rows: np.ndarray) -> tuple[np.ndar
     n = out_n[rows]
     norm = np.linalg.norm(n, axis=1, keepdims=True)
     return c, np.where(norm > 1e-9, n / np.maximum(norm, 1e-300), [[0.0, 0.0, 1.0]])
-
-
-def _concat(a: Viewpoints, b: Viewpoints) -> Viewpoints:
-    """The viewpoints of `a` followed by those of `b`."""
-    return make_viewpoints(
-        np.vstack([a.positions, b.positions]),
-        np.vstack([a.gazes, b.gazes]),
-        np.vstack([a.ups, b.ups]),
-    )

@@ -28,6 +28,7 @@ PROFILES: dict[str, dict[str, object]] = {
         "rows": "patches",
         "min_coverage": 0.999,
         "adaptive": True,
+        "sphere": 200,
     },
     "paper": {
         "tilt_deg": 0.0,
@@ -36,6 +37,7 @@ PROFILES: dict[str, dict[str, object]] = {
         "rows": "faces",
         "min_coverage": 1.0,
         "adaptive": False,
+        "sphere": 0,
     },
 }
 """What each profile fills in where a request leaves a field out (docs/quality.md): `default`,
@@ -120,6 +122,15 @@ class CandidateGenerator(_Strict):
         description="after a quick cover, add candidates aimed at the rows that force views, "
         "trace only those and cover again, while the count improves (docs/quality.md); "
         "default: the profile's (on; paper: off)",
+    )
+    sphere: int | None = Field(
+        None,
+        ge=0,
+        le=5000,
+        description="viewpoints on view spheres around the part (looking at its centre) traced "
+        "after the generated ones; those sampling surface no generated candidate samples (an "
+        "inside seen through a window, a gap between gears) join the pool "
+        "(docs/quality.md); default: the profile's (200; paper: 0)",
     )
 
 
@@ -227,6 +238,7 @@ class PlanRequest(_Strict):
                 else chosen["retry_tilt_deg"],
                 "standoff_mm": spec.standoff_mm or standoff or self.sensor.working_distance,
                 "adaptive": chosen["adaptive"] if spec.adaptive is None else spec.adaptive,
+                "sphere": chosen["sphere"] if spec.sphere is None else spec.sphere,
             }
             self.candidates = spec.model_copy(update=update)
         return self
@@ -284,8 +296,14 @@ class CandidateInfo(BaseModel):
     tilt_deg: float | None = None
     retry_tilt_deg: float | None = None
     standoff_mm: float | None = None
+    sphere: int = 0
+    """View-sphere candidates that joined the pool: they sample surface no generated one
+    does (their ids follow the generated ones)."""
+    sphere_traced: int = 0
+    """View-sphere candidates traced to find them."""
     added: int = 0
-    """Candidates added by the adaptive rounds (their ids follow the generated ones)."""
+    """Candidates added by the adaptive rounds (their ids follow the generated and the
+    view-sphere ones)."""
     robot: RobotCounts | None = None
     """With a robot or turntable: the poses its reach was computed for (generator and
     adaptive rounds) and those dropped by reason (no_ik, joint_limit, collision)."""

@@ -79,6 +79,7 @@ from vpp_core.plan.robotplan import (
     reachable_filter,
     table_candidates,
 )
+from vpp_core.plan.spherereach import sphere_reach
 from vpp_core.plan.tour import path_length
 from vpp_core.plan.warm import warm
 from vpp_core.trace.rays import RayBackend
@@ -395,8 +396,9 @@ def grow(
     *,
     spent_s: float = 0.0,
 ) -> tuple[Viewpoints, CandidateInfo, Trace, list[AdaptiveRound]]:
-    """The candidate pool grown by the adaptive rounds (vpp_core.plan.adaptive), its R and
-    the rounds; unchanged when the request does not ask for them. `backend`: over the part,
+    """The candidate pool grown by the view sphere's views that reach new rows
+    (vpp_core.plan.spherereach) and the adaptive rounds (vpp_core.plan.adaptive), its R and
+    the rounds; unchanged when the request asks for neither. `backend`: over the part,
     or over its elements where `trace` is of them (made here when None). New cameras only where
     the setup (`cell`, else the request's) lets them be. `spent_s`: wall seconds the plan
     spent before (no round starts whose tracing would end past ADAPT_SHARE of the time
@@ -423,6 +425,23 @@ def grow(
     backend = backend or setup_backend(geometry, request, cell, trace.backend)
     tally: Counter[str] = Counter()  # the robot's drops in the rounds
     deadline = began + ADAPT_SHARE * request.solver.time_limit_s - spent_s
+    keep = reachable_filter(part, cell, tally)
+    spec = request.candidates
+    sphere = (spec.sphere or 0) if isinstance(spec, CandidateGenerator) else 0
+    reached = sphere_reach(
+        part,
+        request.sensor,
+        views,
+        trace,
+        sphere,
+        model_of,
+        trace_of,
+        allowed=allowed(cell),
+        keep=keep,
+        deadline=deadline,
+    )
+    info = info.model_copy(update={"sphere": reached.added, "sphere_traced": reached.traced})
+    views, trace = reached.views, reached.trace
     pool = adapt(
         geometry,
         request,
@@ -434,7 +453,7 @@ def grow(
         trace_of,
         allowed=allowed(cell),
         deadline=deadline,
-        keep=reachable_filter(part, cell, tally),
+        keep=keep,
     )
     added = len(pool.views) - len(views)
     info = counted(info.model_copy(update={"added": added}), tally)

@@ -30,12 +30,8 @@ from vpp_core.candidates.sphere import view_sphere
 from vpp_core.cell.reach import Allowed
 from vpp_core.cover.density import CoverModel
 from vpp_core.mesh.part import Part
+from vpp_core.plan.adaptive import Model, Tracer
 from vpp_core.trace.raytrace import Trace, join_traces
-
-Model = Callable[[Viewpoints, Trace], CoverModel]
-"""model(views, trace) -> the cover's rows for the request (vpp_core.plan.adaptive.Model)."""
-Tracer = Callable[[Viewpoints], Trace]
-"""trace_of(views) -> R of new views, as the pool's was traced."""
 
 
 @dataclass(frozen=True)
@@ -104,7 +100,8 @@ def new_reach(model: CoverModel, n_before: int) -> np.ndarray:
 
 
 def columns(trace: Trace, idx: np.ndarray) -> Trace:
-    """The trace of the views `idx` of `trace` (its seconds kept)."""
+    """R of the views `idx` of `trace`; its rays, pixels and seconds stay those of the whole
+    trace (the work done to find them)."""
     elements = None if trace.elements is None else sp.csc_array(trace.elements[:, idx])
     return Trace(
         sp.csc_array(trace.counts[:, idx]),

@@ -72,14 +72,20 @@ def plate_part(**kw: float) -> Part:
 
 
 def bench_module(name: str) -> Any:
-    """bench/<name>.py imported as a module (it puts bench/ on sys.path for its own imports);
-    registered in sys.modules first, where its dataclasses look their module up."""
+    """bench/<name>.py imported as a module; registered in sys.modules first, where its
+    dataclasses look their module up. It puts bench/ on sys.path for its own imports, taken
+    off again after: bench/service.py would otherwise shadow the `service` package for every
+    later test that imports it first."""
     path = ROOT / "bench" / f"{name}.py"
     spec = importlib.util.spec_from_file_location(f"vpp_bench_{name}", path)
     assert spec is not None and spec.loader is not None
     module = importlib.util.module_from_spec(spec)
     sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
+    before = list(sys.path)
+    try:
+        spec.loader.exec_module(module)
+    finally:
+        sys.path[:] = before
     return module
 
 

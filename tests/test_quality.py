@@ -98,6 +98,9 @@ def test_the_paper_profile_is_spec_2_and_the_default_fills_its_own():
     assert mixed.candidates.tilt_deg == 20 and mixed.target.rows == "patches"  # type: ignore[union-attr]
     with pytest.raises(ValueError, match="depth of field"):
         PlanRequest(candidates={"standoff_mm": 900})
+    assert (default.candidates.sphere, paper.candidates.sphere) == (200, 0)  # type: ignore[union-attr]
+    with pytest.raises(ValueError, match="less than or equal to 1000"):
+        PlanRequest(candidates={"sphere": 1001})  # the tracing stays bounded
 
 
 def test_paper_candidates_stand_at_the_working_distance_along_the_normal():

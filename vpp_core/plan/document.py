@@ -126,11 +126,12 @@ class CandidateGenerator(_Strict):
     sphere: int | None = Field(
         None,
         ge=0,
-        le=5000,
+        le=1000,
         description="viewpoints on view spheres around the part (looking at its centre) traced "
         "after the generated ones; those sampling surface no generated candidate samples (an "
         "inside seen through a window, a gap between gears) join the pool "
-        "(docs/quality.md); default: the profile's (200; paper: 0)",
+        "(docs/quality.md); at most 1 000, the baseline's count; default: the profile's (200; "
+        "paper: 0)",
     )
 
 

@@ -425,7 +425,7 @@ def grow(
     backend = backend or setup_backend(geometry, request, cell, trace.backend)
     tally: Counter[str] = Counter()  # the robot's drops in the rounds
     deadline = began + ADAPT_SHARE * request.solver.time_limit_s - spent_s
-    keep = reachable_filter(part, cell, tally)
+    keep, cameras_allowed = reachable_filter(part, cell, tally), allowed(cell)
     spec = request.candidates
     sphere = (spec.sphere or 0) if isinstance(spec, CandidateGenerator) else 0
     reached = sphere_reach(
@@ -436,7 +436,7 @@ def grow(
         sphere,
         model_of,
         trace_of,
-        allowed=allowed(cell),
+        allowed=cameras_allowed,
         keep=keep,
         deadline=deadline,
     )
@@ -451,7 +451,7 @@ def grow(
         model_of,
         quick,
         trace_of,
-        allowed=allowed(cell),
+        allowed=cameras_allowed,
         deadline=deadline,
         keep=keep,
     )

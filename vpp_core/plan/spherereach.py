@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import scipy.sparse as sp
@@ -89,26 +89,18 @@ def new_reach(model: CoverModel, n_before: int) -> np.ndarray:
     least = max(float(np.median(model.row_areas())), 1e-12) if rows else np.inf
     sampled = csc[:, n_before:]
     chosen: list[int] = []
-    while True:
+    while sampled.shape[1]:  # ends: a chosen column's gain drops to 0 < least
         gain = sampled.T @ weight
-        best = int(np.argmax(gain)) if len(gain) else 0
-        if not len(gain) or gain[best] < least:
-            return np.sort(np.asarray(chosen, dtype=np.int64))
+        best = int(np.argmax(gain))
+        if gain[best] < least:
+            break
         chosen.append(best)
-        col = sampled.indices[sampled.indptr[best] : sampled.indptr[best + 1]]
-        weight[col] = 0.0
+        weight[sampled.indices[sampled.indptr[best] : sampled.indptr[best + 1]]] = 0.0
+    return np.sort(np.asarray(chosen, dtype=np.int64))
 
 
 def columns(trace: Trace, idx: np.ndarray) -> Trace:
     """R of the views `idx` of `trace`; its rays, pixels and seconds stay those of the whole
     trace (the work done to find them)."""
     elements = None if trace.elements is None else sp.csc_array(trace.elements[:, idx])
-    return Trace(
-        sp.csc_array(trace.counts[:, idx]),
-        trace.rays_cast,
-        trace.pixels,
-        trace.backend,
-        trace.seconds,
-        elements,
-        trace.element_mm2,
-    )
+    return replace(trace, counts=sp.csc_array(trace.counts[:, idx]), elements=elements)

@@ -177,6 +177,31 @@ def test_sphere_views_join_for_the_rows_the_pool_does_not_sample_greedily():
     assert new_reach(toy_model(areas, everything + sphere), 2).size == 0
 
 
+def test_sphere_views_are_scouted_at_a_quarter_of_the_pixels_and_counted_as_whole_images():
+    from vpp_core.plan.spherereach import SCOUT_SCALE, as_full_image, scout_sensor
+
+    part = load_mesh(sample_stl(), "stl")
+    views = view_sphere(part, SMALL, 12)
+    assert SMALL.camera_rays.shape[0] == SMALL.n_pixels  # cached: the scout needs its own
+    scout = scout_sensor(SMALL)
+    assert (scout.width_px, scout.height_px) == (320 // SCOUT_SCALE, 200 // SCOUT_SCALE)
+    assert scout.camera_rays.shape[0] == scout.n_pixels == SMALL.n_pixels // SCOUT_SCALE**2
+    assert (scout.fov_x_deg, scout.near_mm, scout.far_mm) == (38.7, SMALL.near_mm, SMALL.far_mm)
+    full = trace_counts(part, SMALL, views).counts.toarray().astype(float)
+    scouted = as_full_image(trace_counts(part, scout, views), SCOUT_SCALE**2)
+    coarse = scouted.counts.toarray().astype(float)
+    # each view's rays on the part, and on each eighth of it (octants about its centre) that
+    # it sees well, agree within 5 and 10 %
+    np.testing.assert_allclose(coarse.sum(axis=0), full.sum(axis=0), rtol=0.05)
+    centres = part.vertices[part.faces].mean(axis=1)
+    side = (centres > centres.mean(axis=0)) @ np.array([1, 2, 4])
+    eighths = sp.csr_array((np.ones(len(side)), (side, np.arange(len(side)))), shape=(8, len(side)))
+    whole, scout_eighths = eighths @ full, eighths @ coarse
+    big = whole > 500
+    assert big.sum() >= 20
+    np.testing.assert_allclose(scout_eighths[big], whole[big], rtol=0.1)
+
+
 def test_a_default_plans_pool_gains_the_sphere_views_that_see_what_it_does_not():
     # six generated candidates leave most of the bushing unseen: the sphere views that sample
     # surface none of them samples join, after them and before the adaptive rounds' views

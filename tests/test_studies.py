@@ -24,7 +24,7 @@ def request(**target: object) -> PlanRequest:
     return PlanRequest(
         sensor=SMALL,
         target=Target(**target),  # type: ignore[arg-type]
-        candidates=CandidateGenerator(count=30, seed=3, standoff_mm=500, adaptive=False),
+        candidates=CandidateGenerator(count=30, seed=3, standoff_mm=500, adaptive=False, sphere=0),
     )  # a sweep shares one pool: the fresh plans must not grow theirs or move the stand-off
 
 

@@ -301,7 +301,8 @@ class CandidateInfo(BaseModel):
     """View-sphere candidates that joined the pool: they sample surface no generated one
     does (their ids follow the generated ones)."""
     sphere_traced: int = 0
-    """View-sphere candidates traced to find them."""
+    """View-sphere candidates traced to find them (scouted with a quarter of the sensor's
+    pixels; those that joined are traced again at full resolution)."""
     added: int = 0
     """Candidates added by the adaptive rounds (their ids follow the generated and the
     view-sphere ones)."""

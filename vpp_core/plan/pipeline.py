@@ -417,10 +417,11 @@ def grow(
         must = rows.targets.region_rows(model.face_row, model.faces, model.matrix.shape[0])
         return solve(model, request.target, settings, threads, None, must)
 
+    def trace_at(vs: Viewpoints, sensor: Sensor) -> Trace:
+        return trace_counts(part, sensor, vs, backend=backend, threads=threads, elements=split)
+
     def trace_of(vs: Viewpoints) -> Trace:
-        return trace_counts(
-            part, request.sensor, vs, backend=backend, threads=threads, elements=split
-        )
+        return trace_at(vs, request.sensor)
 
     backend = backend or setup_backend(geometry, request, cell, trace.backend)
     tally: Counter[str] = Counter()  # the robot's drops in the rounds
@@ -435,7 +436,7 @@ def grow(
         trace,
         sphere,
         model_of,
-        trace_of,
+        trace_at,
         allowed=cameras_allowed,
         keep=keep,
         deadline=deadline,

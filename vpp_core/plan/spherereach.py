@@ -13,6 +13,11 @@ already samples stay out, since each extra candidate can make a patch ask for mo
 (bench/synthetic.py) 43 views each adding 0.1-11 mm² of inner gears seen through gaps, 127 mm²
 in all (0.14 % of the weight), took its plan from 155 views to 185, while on the windowed
 one a handful add 100-500 mm² each (docs/quality.md).
+
+The sphere views are scouted at 1/SCOUT_SCALE of the sensor's width and height (its rays
+counted as the full image's, SCOUT_SCALE² each), and only those that join are traced again at
+full resolution: the stage costs about a quarter of tracing them whole, so that it fits the
+budget of a slower machine after a large part's trace (docs/quality.md).
 """
 
 from __future__ import annotations
@@ -30,8 +35,14 @@ from vpp_core.candidates.sphere import view_sphere
 from vpp_core.cell.reach import Allowed
 from vpp_core.cover.density import CoverModel
 from vpp_core.mesh.part import Part
-from vpp_core.plan.adaptive import Model, Tracer
+from vpp_core.plan.adaptive import Model
 from vpp_core.trace.raytrace import Trace, join_traces
+
+SCOUT_SCALE = 2
+"""The sphere views are first traced with this many times fewer pixels across."""
+
+TraceAt = Callable[[Viewpoints, Sensor], Trace]
+"""trace_at(views, sensor) -> R of `views` through `sensor`, as the pool's was traced."""
 
 
 @dataclass(frozen=True)
@@ -51,30 +62,57 @@ def sphere_reach(
     trace: Trace,
     count: int,
     model_of: Model,
-    trace_of: Tracer,
+    trace_at: TraceAt,
     *,
     allowed: Allowed | None = None,
     keep: Callable[[Viewpoints], Viewpoints] | None = None,
     deadline: float = float("inf"),
 ) -> Reached:
-    """`views` (R in `trace`) with those of `count` view-sphere viewpoints around `part` that
-    sample rows the pool does not (see module docstring); cameras only where `allowed` lets them
-    be and `keep` keeps them; none when their tracing, at the pool's rate, would end after
-    `deadline` (time.perf_counter() seconds)."""
+    """`views` (R in `trace`, through `sensor`) with those of `count` view-sphere viewpoints
+    around `part` that sample rows the pool does not (see module docstring), scouted through
+    `scout_sensor(sensor)`; cameras only where `allowed` lets them be and `keep` keeps them;
+    none when their scouting, at the pool's rate per pixel, would end after `deadline`
+    (time.perf_counter() seconds)."""
     unchanged = Reached(views, trace, 0, 0)
-    if count < 1 or time.perf_counter() + trace.seconds / max(len(views), 1) * count > deadline:
+    scout = scout_sensor(sensor)
+    per_view = trace.seconds / max(len(views), 1) * scout.n_pixels / sensor.n_pixels
+    if count < 1 or time.perf_counter() + per_view * count > deadline:
         return unchanged
     sphere = view_sphere(part, sensor, count, allowed=allowed)
     sphere = sphere if keep is None else keep(sphere)
     if not len(sphere):
         return unchanged
-    traced = trace_of(sphere)
-    joined = join_traces([trace, traced], trace.seconds + traced.seconds)
-    chosen = new_reach(model_of(views.then(sphere), joined), len(views))
+    scouted = as_full_image(trace_at(sphere, scout), sensor.n_pixels / scout.n_pixels)
+    seconds = trace.seconds + scouted.seconds
+    pooled = join_traces([trace, scouted], seconds)
+    chosen = new_reach(model_of(views.then(sphere), pooled), len(views))
     if not len(chosen):
         return Reached(views, trace, 0, len(sphere))
-    taken = join_traces([trace, columns(traced, chosen)], joined.seconds)
-    return Reached(views.then(sphere.take(chosen)), taken, len(chosen), len(sphere))
+    joined = sphere.take(chosen)
+    traced = trace_at(joined, sensor)
+    taken = join_traces([trace, traced], seconds + traced.seconds)
+    return Reached(views.then(joined), taken, len(chosen), len(sphere))
+
+
+def scout_sensor(sensor: Sensor) -> Sensor:
+    """`sensor` with SCOUT_SCALE times fewer pixels along each side, the same field of view
+    and depth of field (a new Sensor: model_copy would keep the cached pixel rays)."""
+    width = max(1, sensor.width_px // SCOUT_SCALE)
+    height = max(1, sensor.height_px // SCOUT_SCALE)
+    return Sensor(**{**sensor.model_dump(), "width_px": width, "height_px": height})
+
+
+def as_full_image(trace: Trace, factor: float) -> Trace:
+    """R of a scout `trace` counted as the full image's: each ray stands for `factor` rays
+    (the ratio of the two images' pixels)."""
+
+    def scaled(r: sp.csc_array) -> sp.csc_array:
+        return sp.csc_array(
+            (np.rint(r.data * factor).astype(np.int32), r.indices, r.indptr), shape=r.shape
+        )
+
+    elements = None if trace.elements is None else scaled(trace.elements)
+    return replace(trace, counts=scaled(trace.counts), elements=elements)
 
 
 def new_reach(model: CoverModel, n_before: int) -> np.ndarray:
@@ -97,10 +135,3 @@ def new_reach(model: CoverModel, n_before: int) -> np.ndarray:
         chosen.append(best)
         weight[sampled.indices[sampled.indptr[best] : sampled.indptr[best + 1]]] = 0.0
     return np.sort(np.asarray(chosen, dtype=np.int64))
-
-
-def columns(trace: Trace, idx: np.ndarray) -> Trace:
-    """R of the views `idx` of `trace`; its rays, pixels and seconds stay those of the whole
-    trace (the work done to find them)."""
-    elements = None if trace.elements is None else sp.csc_array(trace.elements[:, idx])
-    return replace(trace, counts=sp.csc_array(trace.counts[:, idx]), elements=elements)

@@ -46,6 +46,18 @@ def test_pixel_rays_follow_the_opencv_intrinsics():
     assert rays[1, 3].tolist() == pytest.approx([(3.5 - 2) / 2, (1.5 - 1) / s.fy, 1.0])
 
 
+def test_a_copy_with_changed_fields_computes_its_own_pixel_rays_and_is_validated():
+    sensor = Sensor(width_px=64, height_px=40)
+    assert sensor.camera_rays.shape == (64 * 40, 3)  # cached on the original
+    half = sensor.model_copy(update={"width_px": 32, "height_px": 20})
+    assert half.camera_rays.shape == (32 * 20, 3) and half.pixel_x.shape == (32,)
+    np.testing.assert_allclose(half.pixel_x[-1], (31.5 - 16) / half.fx)
+    assert half.working_distance == sensor.working_distance
+    assert sensor.model_copy() == sensor
+    with pytest.raises(ValueError):
+        sensor.model_copy(update={"near_mm": 800.0})  # beyond far_mm
+
+
 def test_default_up_is_world_z_projected_and_frame_is_right_handed():
     v = make_viewpoints([[500, 0, 0]], [[-1, 0, 0]])
     m = v.camera_to_world()[0]

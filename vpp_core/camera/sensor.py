@@ -8,7 +8,9 @@ z = 1 the ray parameter t of a hit *is* its depth along the optical axis.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from functools import cached_property
+from typing import Any, Self
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
@@ -72,6 +74,14 @@ class Sensor(BaseModel):
     def pixel_pitch_mm(self, depth_mm: float) -> float:
         """Footprint of one pixel along x at a given depth (mm), SPEC §7."""
         return 2 * depth_mm * math.tan(math.radians(self.fov_x_deg) / 2) / self.width_px
+
+    def model_copy(self, *, update: Mapping[str, Any] | None = None, deep: bool = False) -> Self:
+        """A copy; with `update`, a new Sensor validated from the changed fields, so that the
+        pixel rays cached on this one (cached_property) are not carried over to another
+        image size or field of view."""
+        if not update:
+            return super().model_copy(deep=deep)
+        return type(self).model_validate({**self.model_dump(), **update})
 
     @cached_property
     def pixel_x(self) -> np.ndarray:

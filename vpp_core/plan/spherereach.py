@@ -75,14 +75,15 @@ def sphere_reach(
     (time.perf_counter() seconds)."""
     unchanged = Reached(views, trace, 0, 0)
     scout = scout_sensor(sensor)
-    per_view = trace.seconds / max(len(views), 1) * scout.n_pixels / sensor.n_pixels
+    factor = sensor.n_pixels / scout.n_pixels  # full-image rays per scout ray
+    per_view = trace.seconds / max(len(views), 1) / factor
     if count < 1 or time.perf_counter() + per_view * count > deadline:
         return unchanged
     sphere = view_sphere(part, sensor, count, allowed=allowed)
     sphere = sphere if keep is None else keep(sphere)
     if not len(sphere):
         return unchanged
-    scouted = as_full_image(trace_at(sphere, scout), sensor.n_pixels / scout.n_pixels)
+    scouted = as_full_image(trace_at(sphere, scout), factor)
     seconds = trace.seconds + scouted.seconds
     pooled = join_traces([trace, scouted], seconds)
     chosen = new_reach(model_of(views.then(sphere), pooled), len(views))
@@ -96,10 +97,10 @@ def sphere_reach(
 
 def scout_sensor(sensor: Sensor) -> Sensor:
     """`sensor` with SCOUT_SCALE times fewer pixels along each side, the same field of view
-    and depth of field (a new Sensor: model_copy would keep the cached pixel rays)."""
+    and depth of field."""
     width = max(1, sensor.width_px // SCOUT_SCALE)
     height = max(1, sensor.height_px // SCOUT_SCALE)
-    return Sensor(**{**sensor.model_dump(), "width_px": width, "height_px": height})
+    return sensor.model_copy(update={"width_px": width, "height_px": height})
 
 
 def as_full_image(trace: Trace, factor: float) -> Trace:

@@ -19,7 +19,13 @@ from tests.pixelrays import camera_rays, valid_counts
 from tests.test_access import OPEN_MIN, independent_recessed, tangents
 from vpp_core.camera.sensor import Sensor
 from vpp_core.mesh.part import Part, part_from_arrays
-from vpp_core.plan.document import CandidateGenerator, PlanDocument, PlanRequest, Target
+from vpp_core.plan.document import (
+    CandidateGenerator,
+    PlanDocument,
+    PlanRequest,
+    SolverSettings,
+    Target,
+)
 
 SMALL = Sensor(width_px=320, height_px=200, fov_x_deg=38.7, fov_y_deg=24.75)
 
@@ -251,6 +257,8 @@ def patch_planes(part: Part, of: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def test_density_needs_more_views_than_visibility(part):
+    """Within 3 s a plan (measured: density 7 at 2 s as at the default 60 s, when HiGHS
+    proves it after 8 s; visibility 4, proven in 0.3 s)."""
     from vpp_core.plan.pipeline import plan
 
     counts = {}
@@ -259,6 +267,7 @@ def test_density_needs_more_views_than_visibility(part):
             sensor=SMALL,
             target=Target(resolution_mm=1.2, formulation=formulation),
             candidates=CandidateGenerator(count=30, seed=3),
+            solver=SolverSettings(time_limit_s=3),
         )
         counts[formulation] = len(plan(part, request).viewpoints)
     assert counts["density"] > counts["visibility"]

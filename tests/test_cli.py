@@ -31,6 +31,18 @@ def vpp(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess[str]
     )
 
 
+def vpp_here(capsys: pytest.CaptureFixture[str], *args: object) -> tuple[int, str]:
+    """Run the CLI in this process: (exit status, what it wrote to stderr). An interpreter's
+    start costs about a second; the few tests that run it as a user would use `vpp`."""
+    from cli.main import main
+
+    try:
+        code = main(list(map(str, args)))
+    except SystemExit as exc:  # argparse's own errors
+        code = exc.code if isinstance(exc.code, int) else 1
+    return code, capsys.readouterr().err
+
+
 @pytest.fixture
 def plate_files(tmp_path: Path) -> tuple[Path, Path]:
     v, f = plate(side=20.0, n=1)
@@ -203,13 +215,13 @@ ACCEPTED = {
 
 
 @pytest.mark.parametrize("name", [n for n in BAD if n not in ACCEPTED])
-def test_bad_meshes_fail_with_one_line_and_exit_2(name):
+def test_bad_meshes_fail_with_one_line_and_exit_2(name, capsys):
     bad = shared_dir(MESHES / "bad") / name
-    run = vpp("plan", bad, "-q", "--candidates", "5")
-    assert run.returncode == 2, run.stderr
-    lines = run.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("vpp: error:"), run.stderr
-    assert "Traceback" not in run.stderr
+    code, err = vpp_here(capsys, "plan", bad, "-q", "--candidates", "5")
+    assert code == 2, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("vpp: error:"), err
+    assert "Traceback" not in err
 
 
 @pytest.mark.parametrize("name", sorted(ACCEPTED))
@@ -243,16 +255,14 @@ def test_accepted_bad_meshes_plan_and_report_the_problem(name, tmp_path):
         (["--remesh", "inf"], "positive"),
     ],
 )
-def test_bad_options_fail_with_one_line_and_exit_2(plate_files, args, match):
+def test_bad_options_fail_with_one_line_and_exit_2(plate_files, args, match, capsys):
     mesh, _ = plate_files
-    run = vpp("plan", mesh, "-q", *args)
-    assert run.returncode == 2
-    assert len(run.stderr.strip().splitlines()) == 1 and match in run.stderr
+    code, err = vpp_here(capsys, "plan", mesh, "-q", *args)
+    assert code == 2, err
+    assert len(err.strip().splitlines()) == 1 and match in err
 
 
 def test_bad_files_fail_with_one_line_and_exit_2(plate_files, tmp_path, capsys):
-    from cli.main import main
-
     mesh, _ = plate_files
     (tmp_path / "bad.json").write_text("{nope")
     (tmp_path / "views.json").write_text(json.dumps([{"position": [0, 0, 1], "gaze": [0, 0, 0]}]))
@@ -263,8 +273,7 @@ def test_bad_files_fail_with_one_line_and_exit_2(plate_files, tmp_path, capsys):
         ["--sensor", tmp_path / "sensor.json"],
         ["--candidates-file", tmp_path / "views.json"],
     ):
-        code = main(list(map(str, ("plan", mesh, "-q", *args))))  # here: 2 s less each
-        err = capsys.readouterr().err
+        code, err = vpp_here(capsys, "plan", mesh, "-q", *args)
         assert code == 2, (args, err)
         assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
     run = vpp("plan", tmp_path / "nothing.stl", "-q")  # and one as a user runs it

@@ -45,6 +45,7 @@ f = 1 is the strict cover (`solve_cover`).
 from __future__ import annotations
 
 import functools
+import heapq
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -203,22 +204,37 @@ def _merged(A: sp.csr_array, w: np.ndarray, costs: np.ndarray) -> _Merged:
 def greedy_partial(
     A: sp.csr_array, costs: np.ndarray, w: np.ndarray, required: float
 ) -> np.ndarray:
-    """(K,) int64 columns of A (M, N) picked greedily by weighted progress per cost, then pruned."""
+    """(K,) int64 columns of A (M, N) picked greedily by weighted progress per cost, then pruned.
+
+    Lazily: a column's progress Σ_i w_i min(r_i, A_ij) only falls as the residual demands r
+    fall, so a heap of stale values is re-checked at its top only (the picks of evaluating
+    every column each turn, in a fraction of the time on a model of 10⁶ entries)."""
     csc = sp.csc_array(A)
-    rows, n = csc.indices, A.shape[1]
-    col_of = np.repeat(np.arange(n), np.diff(csc.indptr))
+    ip, ix, dv = csc.indptr, csc.indices, csc.data
     r = np.ones(A.shape[0])
+
+    def gain(j: int) -> float:
+        """Column j's progress, summed in row order (ties between columns stay exact)."""
+        rows = ix[ip[j] : ip[j + 1]]
+        progress = np.minimum(r[rows], dv[ip[j] : ip[j + 1]]) * w[rows]
+        return float(np.cumsum(progress)[-1]) if len(rows) else 0.0
+
+    heap = [(-g / costs[j], j) for j in range(A.shape[1]) if (g := gain(j)) > 0.0]
+    heapq.heapify(heap)
     picked: list[int] = []
     enough = required - _slack(w)
     while float(w[r <= BUILD_TOL].sum()) < enough:
-        progress = np.minimum(r[rows], csc.data) * w[rows]
-        gain = np.bincount(col_of, weights=progress, minlength=n)
-        gain[picked] = -1.0
-        j = int(np.argmax(gain / costs))
-        if gain[j] <= 0.0:
+        if not heap:
             raise SolverError("the required weight cannot be reached even with all columns")
-        seg = slice(csc.indptr[j], csc.indptr[j + 1])
-        r[rows[seg]] = np.maximum(r[rows[seg]] - csc.data[seg], 0.0)
+        _, j = heapq.heappop(heap)
+        g = gain(j)
+        if g <= 0.0:
+            continue
+        if heap and (key := (-g / costs[j], j)) > heap[0]:  # another may now gain more
+            heapq.heappush(heap, key)
+            continue
+        rows = ix[ip[j] : ip[j + 1]]
+        r[rows] = np.maximum(r[rows] - dv[ip[j] : ip[j + 1]], 0.0)
         picked.append(j)
     return prune_partial(A, np.array(picked, dtype=np.int64), costs, w, required)
 

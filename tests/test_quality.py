@@ -353,6 +353,38 @@ def test_no_round_starts_that_its_tracing_or_the_rows_would_end_past_half(monkey
     assert not pipeline.plan(part, grown).adaptive
 
 
+def test_smoothed_normals_are_the_area_weighted_means_of_near_faces_on_their_side():
+    """patches.smoothed against the rule written plainly, face by face: the k nearest face
+    centres within the radius (itself included), those whose normal points to the face's
+    side, area-weighted, three passes; a face keeps its normal where the sum cancels."""
+    from vpp_core.cover.patches import SMOOTH_NEIGHBOURS, SMOOTH_PASSES, smoothed
+
+    rng = np.random.default_rng(4)
+    sphere = trimesh.creation.icosphere(subdivisions=3, radius=10.0)
+    sphere.vertices += rng.normal(0, 0.3, sphere.vertices.shape)  # a scan's noisy normals
+    wall = trimesh.creation.box([12, 12, 1.0])  # a thin wall: its sides are within the radius
+    wall = wall.subdivide().subdivide()
+    wall.apply_translation([30, 0, 0])
+    both = trimesh.util.concatenate([sphere, wall])
+    part = part_from_arrays(both.vertices, both.faces)
+    centres = part.vertices[part.faces].mean(axis=1)
+    radius = 3.0
+    dist = np.linalg.norm(centres[:, None] - centres[None], axis=2)
+    near = [np.argsort(d, kind="stable")[:SMOOTH_NEIGHBOURS] for d in dist]
+    near = [n[dist[m, n] <= radius] for m, n in enumerate(near)]
+    expected = part.normals.copy()
+    for _ in range(SMOOTH_PASSES):
+        last = expected.copy()
+        for m, n in enumerate(near):
+            side = n[last[n] @ last[m] > 0]
+            total = (part.areas[side, None] * last[side]).sum(axis=0)
+            if np.linalg.norm(total) > 1e-9 * part.areas.max():
+                expected[m] = total / np.linalg.norm(total)
+    got = smoothed(centres, part.normals, part.areas, radius)
+    assert np.allclose(got, expected, atol=1e-9)
+    assert np.abs(np.einsum("ij,ij->i", got, part.normals) - 1).max() > 1e-3  # it smoothed
+
+
 def test_a_patch_is_one_connected_piece_of_surface():
     """Two coplanar 3 × 3 mm squares 1 mm apart face the same way within one 10 mm patch: by
     place and normal alone they share a row (the outer face and a hole's floor would); given

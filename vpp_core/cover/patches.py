@@ -200,15 +200,28 @@ def smoothed(
     return normals
 
 
+@kernel
 def _averaged(normals: np.ndarray, idx: np.ndarray, weights: np.ndarray, tiny: float) -> np.ndarray:
     """(M, 3) one smoothing pass: each normal the `weights`-weighted (M, k) mean of its
     neighbours' `idx` (M, k) that point to its side; its own where the sum's norm is below
     `tiny`."""
-    near = normals[idx]
-    keep = np.einsum("mkj,mj->mk", near, normals) > 0
-    total = np.einsum("mk,mkj->mj", keep * weights, near) + normals * 1e-12
-    norm = np.linalg.norm(total, axis=1, keepdims=True)
-    return np.where(norm > tiny, total / np.maximum(norm, 1e-300), normals)
+    out = np.empty_like(normals)
+    for m in range(len(normals)):
+        n0, n1, n2 = normals[m, 0], normals[m, 1], normals[m, 2]
+        t0 = t1 = t2 = 0.0
+        for k in range(idx.shape[1]):
+            j = idx[m, k]
+            a0, a1, a2 = normals[j, 0], normals[j, 1], normals[j, 2]
+            if a0 * n0 + a1 * n1 + a2 * n2 > 0.0:
+                w = weights[m, k]
+                t0, t1, t2 = t0 + w * a0, t1 + w * a1, t2 + w * a2
+        t0, t1, t2 = t0 + n0 * 1e-12, t1 + n1 * 1e-12, t2 + n2 * 1e-12
+        norm = np.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
+        if norm > tiny:
+            out[m, 0], out[m, 1], out[m, 2] = t0 / norm, t1 / norm, t2 / norm
+        else:
+            out[m, 0], out[m, 1], out[m, 2] = n0, n1, n2
+    return out
 
 
 def _seeds(centres: np.ndarray, areas: np.ndarray, edge_mm: float) -> np.ndarray:

@@ -45,6 +45,8 @@ def test_a_fresh_cache_says_compiling_and_the_next_process_does_not(tmp_path: Pa
     assert first["seen"] == [["compiling", 0, 1], ["compiling", 1, 1]], first
     assert first["seconds"] > warm_module.NOTICE_S
     assert any((tmp_path / "numba").rglob("*.nbi"))  # numba's cache index, written
+    for kernel in ("_averaged", "_greedy_alive"):  # the patch rows' kernels too
+        assert any((tmp_path / "numba").rglob(f"patches.{kernel}-*.nbi")), kernel
     second = warm_in_subprocess(tmp_path / "numba")
     assert second["seen"] == [] and second["seconds"] < warm_module.NOTICE_S, second
 

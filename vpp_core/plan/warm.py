@@ -4,7 +4,8 @@ numba compiles a kernel at its first call and caches the machine code on disk (`
 vpp_core.jit): on a fresh install the first plan's trace sat at "trace 0/N" for half a minute
 while the rasteriser compiled. `warm` traces a tetrahedron with one small view through every
 kernel a plan's trace uses (the backend's own, Embree packets for dense views, arbitrary rays for
-candidate checks): from the cache that is a fraction of a second; otherwise it compiles them, and
+candidate checks) and groups its faces into patches (the default rows' two kernels): from the
+cache that is a fraction of a second; otherwise it compiles them, and
 when that takes longer than `NOTICE_S` it reports the stage `compiling` to the progress callback
 (`compiling 0/1` as it starts, `1/1` once done); once per process and backend.
 `python -m vpp_core.plan.warm` fills the cache for the trace and the set cover's local search
@@ -26,6 +27,7 @@ import numpy as np
 from vpp_core.camera.pose import make_viewpoints
 from vpp_core.camera.sensor import Sensor
 from vpp_core.cover import rowweight
+from vpp_core.cover.patches import make_patches
 from vpp_core.mesh.part import Part, part_from_arrays
 from vpp_core.trace.raster import RasterBackend
 from vpp_core.trace.rays import DEFAULT_BACKEND, BackendName
@@ -59,6 +61,14 @@ def trace_tiny(backend: str | None = None) -> None:
     traced.first_hits(np.zeros(3), np.array([[0.0, 0.0, 1.0]], np.float32), 1e3)
 
 
+def group_tiny() -> None:
+    """Group the tetrahedron's faces into patches once: the normal smoothing's and the seeds'
+    kernels (vpp_core.cover.patches), which every plan's default rows use."""
+    part = tetrahedron()
+    centres = part.vertices[part.faces].mean(axis=1)
+    make_patches(centres, part.normals, part.areas, part.counted, 50.0, corners=part.faces)
+
+
 _log = logging.getLogger(__name__)
 
 
@@ -76,6 +86,7 @@ def warm(backend: str | None = None, progress: Progress | None = None) -> float:
     def run() -> None:
         try:
             trace_tiny(name)
+            group_tiny()
         except BaseException as exc:  # raised in the caller's thread below
             failed.append(exc)
 

@@ -372,11 +372,11 @@ def test_plots_colour_the_part_by_r(plate_files, tmp_path, monkeypatch):
         (["decimation", "--ratios", "2"], "ratios"),
     ],
 )
-def test_bad_study_options_fail_with_one_line_and_exit_2(plate_files, args, match):
+def test_bad_study_options_fail_with_one_line_and_exit_2(plate_files, args, match, capsys):
     mesh, _ = plate_files
-    run = vpp("study", args[0], mesh, "-q", *args[1:])
-    assert run.returncode == 2
-    assert match in run.stderr and len(run.stderr.strip().splitlines()) == 1, run.stderr
+    code, err = vpp_here(capsys, "study", args[0], mesh, "-q", *args[1:])
+    assert code == 2
+    assert match in err and len(err.strip().splitlines()) == 1, err
 
 
 def test_plan_command_does_not_import_the_service_or_matplotlib():

@@ -286,6 +286,41 @@ def test_a_round_whose_candidates_raise_the_quick_count_is_undone(monkeypatch, l
     assert doc.viewpoints and max(v.id for v in doc.viewpoints) < kept
 
 
+@pytest.mark.parametrize("counts", [[10, 12], [10, 9], [10, 9, 8, 7]])
+def test_the_last_rounds_candidates_are_judged_when_no_more_rounds_fit(monkeypatch, counts):
+    # the deadline (two counts: no round after the first) or ROUNDS (four) stops the rounds;
+    # the last round's candidates are still judged by a quick cover: taken back if they raised
+    # the count, kept if they lowered it. Quick counts scripted, the rest of the plan real
+    from dataclasses import replace
+
+    from vpp_core.plan import adaptive, pipeline
+
+    real, pools, views = pipeline.solve, [], iter(counts)
+    real_round_s, calls = adaptive.round_s, []
+
+    def scripted(model, target, settings, *args, **kwargs):
+        out = real(model, target, settings, *args, **kwargs)
+        if settings.name != "greedy":
+            return out
+        pools.append(model.matrix.shape[1])
+        return replace(out, result=replace(out.result, selected=np.arange(next(views))))
+
+    def round_s(*args):  # with two counts, the time runs out after the first round
+        calls.append(True)
+        return real_round_s(*args) if len(counts) > 2 or len(calls) == 1 else float("inf")
+
+    monkeypatch.setattr(pipeline, "solve", scripted)
+    monkeypatch.setattr(adaptive, "round_s", round_s)
+    doc = pipeline.plan(load_mesh(sample_stl(), "stl"), bushing_request(30))
+    *traced, judged = doc.adaptive
+    assert len(traced) == len(counts) - 1 <= adaptive.ROUNDS and judged.added == 0
+    assert all(r.added > 0 for r in traced) and judged.views == counts[-1]
+    raised = counts[-1] > counts[-2]
+    assert judged.removed == (traced[-1].added if raised else 0)
+    kept = pools[-2] if raised else pools[-1]
+    assert len(doc.candidates) == kept and judged.candidates == pools[-1]
+
+
 def test_the_time_limit_is_the_whole_plans_budget(monkeypatch):
     """The final cover gets what loading, compiling (a fresh install's numba: 17 s once, which
     the budget missed), candidates, trace and adaptive rounds left of the limit (less the share

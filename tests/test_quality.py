@@ -255,16 +255,14 @@ def test_adaptive_rounds_add_traced_candidates_and_are_reported():
     assert len(off.candidates) == off.candidate_info.generated + off.candidate_info.sphere
 
 
-@pytest.mark.parametrize("last", [12, 9])
-def test_a_round_whose_candidates_raise_the_quick_count_is_undone(monkeypatch, last):
-    # new candidates can raise what a patch asks for (its best candidate's share), so a grown
-    # pool can need more views: a round that raises the count is taken back, one that leaves
-    # it (10, 9, 9) is kept. The quick covers' counts are scripted; the rest of the plan is real
+def script_quick_counts(monkeypatch: pytest.MonkeyPatch, counts: list[int]) -> list[int]:
+    """The adaptive rounds' quick covers (greedy) answer `counts` views in turn, the rest of
+    the plan runs as it is; returns the pool sizes they were asked about, filled as they are."""
     from dataclasses import replace
 
     from vpp_core.plan import pipeline
 
-    real, pools, views = pipeline.solve, [], iter([10, 9, last])
+    real, pools, views = pipeline.solve, [], iter(counts)
 
     def scripted(model, target, settings, *args, **kwargs):
         out = real(model, target, settings, *args, **kwargs)
@@ -274,6 +272,17 @@ def test_a_round_whose_candidates_raise_the_quick_count_is_undone(monkeypatch, l
         return replace(out, result=replace(out.result, selected=np.arange(next(views))))
 
     monkeypatch.setattr(pipeline, "solve", scripted)
+    return pools
+
+
+@pytest.mark.parametrize("last", [12, 9])
+def test_a_round_whose_candidates_raise_the_quick_count_is_undone(monkeypatch, last):
+    # new candidates can raise what a patch asks for (its best candidate's share), so a grown
+    # pool can need more views: a round that raises the count is taken back, one that leaves
+    # it (10, 9, 9) is kept. The quick covers' counts are scripted; the rest of the plan is real
+    from vpp_core.plan import pipeline
+
+    pools = script_quick_counts(monkeypatch, [10, 9, last])
     doc = pipeline.plan(load_mesh(sample_stl(), "stl"), bushing_request(30))
     first, second, third = doc.adaptive
     assert first.added > 0 and second.added > 0 and third.added == 0
@@ -291,25 +300,15 @@ def test_the_last_rounds_candidates_are_judged_when_no_more_rounds_fit(monkeypat
     # the deadline (two counts: no round after the first) or ROUNDS (four) stops the rounds;
     # the last round's candidates are still judged by a quick cover: taken back if they raised
     # the count, kept if they lowered it. Quick counts scripted, the rest of the plan real
-    from dataclasses import replace
-
     from vpp_core.plan import adaptive, pipeline
 
-    real, pools, views = pipeline.solve, [], iter(counts)
+    pools = script_quick_counts(monkeypatch, counts)
     real_round_s, calls = adaptive.round_s, []
-
-    def scripted(model, target, settings, *args, **kwargs):
-        out = real(model, target, settings, *args, **kwargs)
-        if settings.name != "greedy":
-            return out
-        pools.append(model.matrix.shape[1])
-        return replace(out, result=replace(out.result, selected=np.arange(next(views))))
 
     def round_s(*args):  # with two counts, the time runs out after the first round
         calls.append(True)
         return real_round_s(*args) if len(counts) > 2 or len(calls) == 1 else float("inf")
 
-    monkeypatch.setattr(pipeline, "solve", scripted)
     monkeypatch.setattr(adaptive, "round_s", round_s)
     doc = pipeline.plan(load_mesh(sample_stl(), "stl"), bushing_request(30))
     *traced, judged = doc.adaptive

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import heapq
+from collections.abc import Callable, Iterator
 
 import numpy as np
 import scipy.sparse as sp
@@ -19,6 +20,24 @@ from vpp_core.cover.problem import (
 from vpp_core.errors import SolverError
 
 
+def lazy_picks(n: int, costs: np.ndarray, gain: Callable[[int], float]) -> Iterator[int]:
+    """Columns 0..n-1 in greedy order of gain(j) / costs[j], lowest j on ties, evaluated
+    lazily: the caller updates what `gain` reads after each pick, and gains may only fall, so
+    a heap of stale values is re-checked at its top only. Ends when no column gains."""
+    heap = [(-g / costs[j], j) for j in range(n) if (g := gain(j)) > 0.0]
+    heapq.heapify(heap)
+    while heap:
+        _, j = heapq.heappop(heap)
+        g = gain(j)  # scores only decrease: the popped key is an upper bound
+        if g <= 0.0:
+            continue
+        key = (-g / costs[j], j)
+        if heap and key > heap[0]:
+            heapq.heappush(heap, key)
+            continue
+        yield j
+
+
 def lazy_greedy(csc: sp.csc_array, costs: np.ndarray, r: np.ndarray) -> list[int]:
     """Columns of csc (M, N) picked greedily until residual demand r (M,) is 0 (r is updated)."""
     ip, ix, dv = csc.indptr, csc.indices, csc.data
@@ -28,18 +47,9 @@ def lazy_greedy(csc: sp.csc_array, costs: np.ndarray, r: np.ndarray) -> list[int
         s = slice(ip[j], ip[j + 1])
         return float(np.minimum(r[ix[s]], dv[s]).sum())
 
-    heap = [(-g / costs[j], j) for j in range(csc.shape[1]) if (g := gain(j)) > 0.0]
-    heapq.heapify(heap)
+    picks = lazy_picks(csc.shape[1], costs, gain)
     uncovered, picked = int(np.count_nonzero(r)), []
-    while uncovered and heap:
-        _, j = heapq.heappop(heap)
-        g = gain(j)  # scores only decrease: the popped key is an upper bound
-        if g <= 0.0:
-            continue
-        key = (-g / costs[j], j)
-        if heap and key > heap[0]:
-            heapq.heappush(heap, key)
-            continue
+    while uncovered and (j := next(picks, None)) is not None:
         rows = ix[ip[j] : ip[j + 1]]
         new = r[rows] - dv[ip[j] : ip[j + 1]]
         new[new <= BUILD_TOL] = 0.0

@@ -53,7 +53,7 @@ from surfacerows import point_views, random_points  # noqa: E402
 from vpp_core.camera.pose import Viewpoints, make_viewpoints  # noqa: E402
 from vpp_core.camera.sensor import Sensor  # noqa: E402
 from vpp_core.candidates.sphere import view_sphere  # noqa: E402
-from vpp_core.cover.density import density_matrix, meets, stray_free  # noqa: E402
+from vpp_core.cover.density import density_sum, meets, stray_free  # noqa: E402
 from vpp_core.mesh.part import Part  # noqa: E402
 from vpp_core.mesh.refine import refine  # noqa: E402
 from vpp_core.mesh.tessellate import load_part  # noqa: E402
@@ -143,7 +143,7 @@ def plan_check(
         return line
     part = refine(whole, max_area, max_edge_mm=np.inf)
     counts = trace_counts(part, sensor, views).counts
-    density = np.asarray(density_matrix(counts, part.areas).sum(axis=1)).ravel()
+    density = density_sum(sp.csc_array(counts), part.areas)
     k, a = part.counted, part.areas
     seen = np.diff(sp.csr_array(counts).indptr) > 0
     met = meets(density, 1 / resolution)

@@ -132,6 +132,17 @@ def density_matrix(counts: sp.sparray, areas: np.ndarray) -> sp.csr_array:
     return delta
 
 
+def density_sum(r: sp.csc_array, areas: np.ndarray) -> np.ndarray:
+    """(M,) Σ_j δ_ij over the columns of R (M, N) csc: the sampling density sqrt(rays/mm²) the
+    views add up on each face (areas (M,) mm²; 0 on faces of zero area). The row sums of
+    `density_matrix`, in one pass over R's entries, with no copy of R
+    by rows (3 s of the metrics stage on a 117 k-face part's 30 M entries)."""
+    inv_area = np.divide(1.0, areas, out=np.zeros_like(areas, dtype=np.float64), where=areas > 0)
+    rows = r.indices
+    delta = np.sqrt(r.data.astype(np.float64) * inv_area[rows])
+    return np.bincount(rows, weights=delta, minlength=r.shape[0])
+
+
 def meets(density: np.ndarray, target_density: float | np.ndarray) -> np.ndarray:
     """(M,) bool: density reaches the target (1/mm: one, or (M,) each its own), up to MET_RTOL."""
     return density >= target_density * (1 - MET_RTOL)

@@ -10,7 +10,7 @@ import numpy as np
 import scipy.sparse as sp
 from pydantic import BaseModel
 
-from vpp_core.cover.density import density_matrix, meets
+from vpp_core.cover.density import density_sum, meets
 
 HIST_BINS = 30
 HIST_SPAN = 3.0
@@ -102,11 +102,8 @@ def evaluate(
     against a target r̄ (mm: one for all, or (M,) each face's own; met = r*_i ≤ r̄_i); the
     histogram spans 3 × `default_mm` (default: r̄)."""
     r = sp.csc_array(counts)
-    delta = density_matrix(r, areas)
-    best = np.asarray(delta.sum(axis=1)).ravel()
-    achieved = np.asarray(delta[:, selected].sum(axis=1)).ravel()
-    seen_any = seen(r, np.arange(r.shape[1]))
-    seen_sel = seen(r, selected)
+    best, achieved = density_sum(r, areas), density_sum(r[:, selected], areas)
+    seen_any, seen_sel = seen(r, slice(None)), seen(r, selected)
     target = 1.0 / np.asarray(resolution_mm, dtype=np.float64)
     span = float(resolution_mm) if default_mm is None else default_mm
     w = areas * counted
@@ -140,9 +137,7 @@ def region_metrics(
     coverage and met fractions, each face against the region's own target (counted faces
     only; an ignored region's faces are judged against nothing but seen or not)."""
     r = sp.csc_array(counts)
-    delta = density_matrix(r, areas)
-    best = np.asarray(delta.sum(axis=1)).ravel()
-    achieved = np.asarray(delta[:, selected].sum(axis=1)).ravel()
+    best, achieved = density_sum(r, areas), density_sum(r[:, selected], areas)
     seen_sel = seen(r, selected)
     out = []
     for name, res, faces in members:
@@ -199,10 +194,12 @@ def histogram(
     )
 
 
-def seen(r: sp.csc_array, columns: np.ndarray) -> np.ndarray:
-    """(M,) bool: face hit by at least one valid ray of the given views."""
-    sub = sp.csr_array(r[:, columns])
-    return np.asarray(np.diff(sub.indptr) > 0)
+def seen(r: sp.csc_array, columns: np.ndarray | slice) -> np.ndarray:
+    """(M,) bool: face hit by at least one valid ray of the given views (R csc)."""
+    hit = np.zeros(r.shape[0], dtype=bool)
+    sub = r[:, columns]
+    hit[sub.indices[sub.data != 0]] = True
+    return hit
 
 
 def _frac(mask: np.ndarray, weights: np.ndarray) -> float:

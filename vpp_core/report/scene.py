@@ -22,7 +22,7 @@ import scipy.sparse as sp
 
 from vpp_core.cell.geometry import Cell, transform
 from vpp_core.cell.scene import floor_quad
-from vpp_core.cover.density import density_matrix, meets
+from vpp_core.cover.density import density_sum, meets
 from vpp_core.errors import VppError
 from vpp_core.mesh.part import Part
 from vpp_core.plan.document import PlanDocument
@@ -62,12 +62,12 @@ def face_results(
     (one, or (M,) each face's own)."""
     r = sp.csc_array(counts)
     sub = sp.csc_array(r[:, selected])
-    sub.sort_indices()
-    achieved = np.asarray(density_matrix(sub, areas).sum(axis=1)).ravel()  # δ_ij of J* only
+    sub.sort_indices()  # the viewer's faces per view, in order
+    achieved = density_sum(sub, areas)  # δ_ij of J* only
     state = np.full(r.shape[0], UNMET, np.uint8)
     state[meets(achieved, 1.0 / target_mm)] = MET
     state[~seen(r, selected)] = UNCOVERED
-    state[~seen(r, np.arange(r.shape[1]))] = UNCOVERABLE
+    state[~seen(r, slice(None))] = UNCOVERABLE
     state[~counted] = EXCLUDED
     return FaceResults(
         resolution_mm=resolution_mm(achieved).astype(np.float32),

@@ -58,7 +58,7 @@ from vpp_core.mesh.part import Part  # noqa: E402
 from vpp_core.mesh.refine import refine  # noqa: E402
 from vpp_core.mesh.tessellate import load_part  # noqa: E402
 from vpp_core.plan.document import Target  # noqa: E402
-from vpp_core.plan.metrics import evaluate  # noqa: E402
+from vpp_core.plan.metrics import evaluate, seen  # noqa: E402
 from vpp_core.plan.pipeline import cover_patches  # noqa: E402
 from vpp_core.trace.embree import EmbreeBackend  # noqa: E402
 from vpp_core.trace.raytrace import trace_counts  # noqa: E402
@@ -143,12 +143,13 @@ def plan_check(
         return line
     part = refine(whole, max_area, max_edge_mm=np.inf)
     counts = trace_counts(part, sensor, views).counts
-    density = density_sum(sp.csc_array(counts), part.areas)
+    r = sp.csc_array(counts)
+    density = density_sum(r, part.areas)
     k, a = part.counted, part.areas
-    seen = np.diff(sp.csr_array(counts).indptr) > 0
+    hit = seen(r)
     met = meets(density, 1 / resolution)
     return line | {
-        "element_seen": round(float(a[k & seen].sum() / a[k].sum()), 4),
+        "element_seen": round(float(a[k & hit].sum() / a[k].sum()), 4),
         "element_met": round(float(a[k & met].sum() / a[k].sum()), 4),
     }
 

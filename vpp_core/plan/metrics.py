@@ -102,8 +102,9 @@ def evaluate(
     against a target r̄ (mm: one for all, or (M,) each face's own; met = r*_i ≤ r̄_i); the
     histogram spans 3 × `default_mm` (default: r̄)."""
     r = sp.csc_array(counts)
-    best, achieved = density_sum(r, areas), density_sum(r[:, selected], areas)
-    seen_any, seen_sel = seen(r, slice(None)), seen(r, selected)
+    chosen = r[:, selected]
+    best, achieved = density_sum(r, areas), density_sum(chosen, areas)
+    seen_any, seen_sel = seen(r), seen(chosen)
     target = 1.0 / np.asarray(resolution_mm, dtype=np.float64)
     span = float(resolution_mm) if default_mm is None else default_mm
     w = areas * counted
@@ -137,8 +138,9 @@ def region_metrics(
     coverage and met fractions, each face against the region's own target (counted faces
     only; an ignored region's faces are judged against nothing but seen or not)."""
     r = sp.csc_array(counts)
-    best, achieved = density_sum(r, areas), density_sum(r[:, selected], areas)
-    seen_sel = seen(r, selected)
+    chosen = r[:, selected]
+    best, achieved = density_sum(r, areas), density_sum(chosen, areas)
+    seen_sel = seen(chosen)
     out = []
     for name, res, faces in members:
         mine = faces & counted
@@ -194,11 +196,11 @@ def histogram(
     )
 
 
-def seen(r: sp.csc_array, columns: np.ndarray | slice) -> np.ndarray:
-    """(M,) bool: face hit by at least one valid ray of the given views (R csc)."""
+def seen(r: sp.csc_array) -> np.ndarray:
+    """(M,) bool: face hit by at least one valid ray of the views R (M, K) holds (csc: its
+    columns, say R[:, selected], sliced by the caller)."""
     hit = np.zeros(r.shape[0], dtype=bool)
-    sub = r[:, columns]
-    hit[sub.indices[sub.data != 0]] = True
+    hit[r.indices[r.data != 0]] = True
     return hit
 
 

@@ -66,8 +66,8 @@ def face_results(
     achieved = density_sum(sub, areas)  # δ_ij of J* only
     state = np.full(r.shape[0], UNMET, np.uint8)
     state[meets(achieved, 1.0 / target_mm)] = MET
-    state[~seen(r, selected)] = UNCOVERED
-    state[~seen(r, slice(None))] = UNCOVERABLE
+    state[~seen(sub)] = UNCOVERED
+    state[~seen(r)] = UNCOVERABLE
     state[~counted] = EXCLUDED
     return FaceResults(
         resolution_mm=resolution_mm(achieved).astype(np.float32),

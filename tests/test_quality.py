@@ -321,9 +321,10 @@ def test_the_last_rounds_candidates_are_judged_when_no_more_rounds_fit(monkeypat
 
 
 def test_the_time_limit_is_the_whole_plans_budget(monkeypatch):
-    """The final cover gets what loading, compiling (a fresh install's numba: 17 s once, which
-    the budget missed), candidates, trace and adaptive rounds left of the limit (less the share
-    kept for the stages after it, at least the floor); no round starts past half."""
+    """The final cover gets what loading, candidates, trace and adaptive rounds left of the
+    limit (less the share kept for the stages after it, at least the floor); no round starts
+    past half. Compiling (a fresh install's numba, 35 s once on a 2-core Xeon) is reported and
+    not counted: it cut the crankshaft stand-in's first plan to no round and 9 s of cover."""
     from vpp_core.plan import pipeline
 
     part = load_mesh(sample_stl(), "stl")
@@ -342,8 +343,8 @@ def test_the_time_limit_is_the_whole_plans_budget(monkeypatch):
     monkeypatch.setattr(pipeline, "warm", lambda *args: 0.0)
     t = doc.timings_s
     assert t.compiling == 3.0
-    spent = t.load + t.compiling + t.candidates + t.trace + t.adaptive + t.matrices
-    assert spent >= 10.0
+    spent = t.load + t.candidates + t.trace + t.adaptive + t.matrices  # not t.compiling
+    assert spent >= 7.0
     want = max(pipeline.FINAL_SHARE * budget, budget * (1 - pipeline.AFTER_SHARE) - spent)
     assert limits == [pytest.approx(want, abs=1e-3)]
     late = pipeline.plan(part, request, load_s=budget)  # nothing left: the floor

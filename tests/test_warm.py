@@ -40,13 +40,13 @@ def warm_in_subprocess(cache: Path) -> dict[str, Any]:
 def test_a_fresh_cache_says_compiling_and_the_next_process_does_not(tmp_path: Path) -> None:
     """With an empty numba cache the kernels compile (seconds): `compiling` 0/1 then 1/1; a
     second process finds them in the cache and says nothing. The packets backend: the cheapest
-    to compile of those with kernels."""
+    to compile of those with kernels; the patch rows' and the cover search's kernels too."""
     first = warm_in_subprocess(tmp_path / "numba")
     assert first["seen"] == [["compiling", 0, 1], ["compiling", 1, 1]], first
     assert first["seconds"] > warm_module.NOTICE_S
     assert any((tmp_path / "numba").rglob("*.nbi"))  # numba's cache index, written
-    for kernel in ("_averaged", "_greedy_alive"):  # the patch rows' kernels too
-        assert any((tmp_path / "numba").rglob(f"patches.{kernel}-*.nbi")), kernel
+    for kernel in ("patches._averaged", "patches._greedy_alive", "rowweight._walk"):
+        assert any((tmp_path / "numba").rglob(f"{kernel}-*.nbi")), kernel  # rows', cover's
     second = warm_in_subprocess(tmp_path / "numba")
     assert second["seen"] == [] and second["seconds"] < warm_module.NOTICE_S, second
 

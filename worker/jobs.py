@@ -140,7 +140,7 @@ def _plan(ctx: Context, plan: str) -> dict[str, Any]:
     trace_id = art.trace_id(mesh_id, request, split.max_area_mm2 if split else None)
     timings = Timings()
     progress = stage_progress(ctx.meta)
-    # stage `compiling` while numba compiles (fresh install); it counts in the plan's budget
+    # stage `compiling` while numba compiles (fresh install); not counted in the plan's budget
     timings.compiling = round(warm(request.backend, progress), 4)
     views, info, trace, reused = _trace(ctx, part, request, trace_id, timings, cell, split)
     progress("adaptive", 0, 1)

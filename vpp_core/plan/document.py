@@ -440,7 +440,8 @@ class Timings(BaseModel):
     load: float = 0.0
     """Before planning: reading the mesh (the CLI: since the command started, imports too)."""
     compiling: float = 0.0
-    """numba compiling the trace kernels, on a fresh install only (then cached)."""
+    """numba compiling the trace and cover kernels, on a fresh install only (then cached); not
+    counted in the solver's time limit."""
     candidates: float = 0.0
     trace: float = 0.0
     adaptive: float = 0.0

@@ -198,10 +198,13 @@ def check_request(request: PlanRequest, limits: Limits, cell: Cell | None = None
 
 
 def spent_s(timings: Timings) -> float:
-    """Wall seconds the plan spent before its final cover (load, compiling, candidates, trace,
-    adaptive, the cover's matrices)."""
+    """Wall seconds the plan spent before its final cover (load, candidates, trace, adaptive,
+    the cover's matrices). Not numba compiling the kernels on a fresh install (`compiling`,
+    reported): a one-time cost of the machine, which would otherwise make a fresh install's
+    first plan a worse one (the crankshaft stand-in: 34 s compiling left no adaptive round and
+    9 s of cover, 29 views against 28; docs/quality.md)."""
     t = timings
-    return t.load + t.compiling + t.candidates + t.trace + t.adaptive + t.matrices
+    return t.load + t.candidates + t.trace + t.adaptive + t.matrices
 
 
 def _left(settings: SolverSettings, timings: Timings) -> SolverSettings:
@@ -278,7 +281,7 @@ def plan(
     backend = setup_backend(part, request, cell)  # candidates see the faces
     tracer = tracer_of(split, request, cell, backend)
     check_request(request, limits, cell)
-    # stage `compiling` while numba compiles, on a fresh install; it counts in the budget
+    # stage `compiling` while numba compiles, on a fresh install; not counted in the budget
     clock.timings.compiling = round(warm(request.backend, progress), 4)
     with clock.stage("candidates"):
         views, info = candidates_for(part, request, backend, cell)

@@ -178,7 +178,7 @@ def _plan_options(p: argparse.ArgumentParser) -> None:
         "--min-coverage",
         type=float,
         help="cover this fraction of the coverable area (partial cover; what is left out is "
-        "listed); default profile 0.999, paper 1 = all",
+        "listed); default profile 0.99 (0.999 still seen), paper 1 = all",
     )
     p.add_argument(
         "--open-min",

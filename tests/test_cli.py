@@ -319,10 +319,11 @@ def test_study_resolution_writes_json_csv_and_plots(tmp_path):
     assert len(csv.read_text().splitlines()) == 5
     names = {p.name for p in plots.iterdir()}
     assert {"study.json", "study.csv", "sweep.png", "histogram-1.2mm.png"} <= names
-    # the same count from a fresh plan at one of the resolutions
+    # the same count from a fresh plan on the same pool (a study adds no view-sphere views)
     plan_out = tmp_path / "plan.json"
     run = vpp("plan", mesh, "--sensor", sensor, "--candidates", "40", "-q", "--no-adaptive",
-              "--standoff", "500", "--resolution", "1.2", "-o", plan_out)  # fmt: skip
+              "--sphere", "0", "--standoff", "500", "--resolution", "1.2",
+              "-o", plan_out)  # fmt: skip
     assert run.returncode == 0, run.stderr
     row = next(
         r for r in doc["rows"] if r["resolution_mm"] == 1.2 and r["formulation"] == "density"

@@ -20,7 +20,10 @@ from vpp_core.cover.partial import (
     _merged,
     _model,
     greedy_partial,
+    grown,
+    prune_seen,
     satisfied_rows,
+    seen_columns,
     solve_partial,
 )
 from vpp_core.cover.problem import BUILD_TOL
@@ -337,3 +340,51 @@ def test_relaxation_runs_beside_the_caller_and_stops_when_cancelled():
     bound = relaxation.bound(5.0)  # Lagrangian at whatever duals it had: still a bound
     assert time.perf_counter() - t0 < 3.0
     assert bound < len(greedy_partial(*partial_model(A, w, 0.99)))
+
+
+def test_what_a_partial_cover_leaves_short_is_still_seen():
+    """seen_columns adds columns, the most newly seen weight per cost first, until the rows
+    whose coefficients add up to 1 weigh the fraction asked of those any column has an entry
+    in (row 4, which none samples, does not count; with shares of a row, as a caller may
+    give them, row 3 needs both halves); grown keeps the cover's bound and calls a proven
+    cover that grew unproven."""
+    A = sp.csr_array(
+        np.array([[1, 0, 0, 0], [1, 0, 0, 0], [1, 0, 0, 0], [0, 0.4, 0.2, 0], [0, 0, 0, 0]], float)
+    )
+    seen = sp.csr_array(
+        np.array([[1, 0, 0, 0], [1, 0, 0, 0], [1, 0, 0, 0], [0, 0.5, 0.5, 1], [0, 0, 0, 0]], float)
+    )
+    w = np.array([4.0, 4.0, 4.0, 1.0, 50.0])
+    cover = solve_partial(A[:4], w[:4], 12 / 13)  # row 3 left short: column 0 alone
+    assert list(cover.result.selected) == [0] and cover.result.status == "optimal"
+    costs = np.array([1.0, 1.0, 1.0, 3.0])
+    assert list(seen_columns(seen, w, cover.result.selected, 12 / 13, costs)) == [0]
+    more = seen_columns(seen, w, cover.result.selected, 0.999, costs)
+    assert list(more) == [0, 1, 2]  # two halves at 1 each, not column 3 at 3
+    cheap = seen_columns(seen, w, cover.result.selected, 0.999, np.array([1.0, 1, 1, 1.5]))
+    assert list(cheap) == [0, 3]
+    out = grown(A[:4], w[:4], cover, more, costs)
+    r = out.result
+    assert list(r.selected) == [0, 1, 2] and r.objective == 3.0 and r.bound == 1.0
+    assert r.status == "heuristic" and r.gap == pytest.approx(2 / 3)
+    assert list(out.satisfied) == [True, True, True, False]  # seen, still short of the target
+    assert grown(A[:4], w[:4], cover, cover.result.selected, costs) is cover
+
+
+def test_views_the_seen_share_made_redundant_are_dropped():
+    """Column 2 meets what column 0 does, at 1.5 times its cost, and sees row 3 too: once
+    seen_columns added it (a full view of row 3 for 1.5 rather than half of it for 1),
+    prune_seen drops column 0; the cover is no longer proven."""
+    A = sp.csr_array(np.array([[1, 0, 1], [1, 0, 1], [1, 0, 1], [0, 0.4, 0.2]], float))
+    seen = sp.csr_array(np.array([[1, 0, 1], [1, 0, 1], [1, 0, 1], [0, 0.5, 1]], float))
+    w, costs = np.array([4.0, 4.0, 4.0, 1.0]), np.array([1.0, 1.0, 1.5])
+    cover = solve_partial(A, w, 12 / 13, costs)
+    assert list(cover.result.selected) == [0] and cover.result.status == "optimal"
+    more = seen_columns(seen, w, cover.result.selected, 0.999, costs)
+    assert list(more) == [0, 2]
+    kept = prune_seen(A, w, cover.required, (seen, w, 0.999), more, costs)
+    assert list(kept) == [2]
+    assert list(prune_seen(A, w, cover.required, (seen, w, 0.999), kept, costs)) == [2]
+    out = grown(A, w, cover, kept, costs)
+    assert list(out.result.selected) == [2] and out.result.objective == 1.5
+    assert out.result.status == "heuristic" and out.result.bound == 1.0

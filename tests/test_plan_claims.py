@@ -26,6 +26,7 @@ from vpp_core.plan.document import (
     SolverSettings,
     Target,
 )
+from vpp_core.plan.pipeline import SEEN_SHARE
 
 SMALL = Sensor(width_px=320, height_px=200, fov_x_deg=38.7, fov_y_deg=24.75)
 
@@ -175,7 +176,7 @@ def test_claims_hold_independently(part, formulation, tilt):
     res = 1.2  # mm: this small sensor's pitch at 500 mm is ~1.1 mm
     request = PlanRequest(
         sensor=SMALL,
-        target=Target(resolution_mm=res, formulation=formulation, rows="faces"),
+        target=Target(resolution_mm=res, formulation=formulation, rows="faces", min_coverage=1),
         candidates=CandidateGenerator(count=30, seed=3, tilt_deg=tilt),
     )
     doc = PlanDocument.model_validate_json(plan(part, request).model_dump_json())
@@ -284,15 +285,27 @@ def _c2w(c) -> np.ndarray:
     return m
 
 
-def partial_optimum(s: np.ndarray, w: np.ndarray, fraction: float) -> int:
-    """Fewest columns satisfying rows of weight >= fraction · Σw (scipy milp, z binary)."""
+def partial_optimum(
+    s: np.ndarray, w: np.ndarray, fraction: float, seen: np.ndarray | None = None
+) -> int:
+    """Fewest columns satisfying rows of weight >= fraction · Σw (scipy milp, z binary), and
+    where `seen` (rows,) weights are given, with rows of seen-weight >= SEEN_SHARE of theirs
+    sampled (an entry > 0) by some chosen column."""
     m, n = s.shape
-    rows = np.hstack([s, -np.eye(m)])
-    weight = np.concatenate([np.zeros(n), w])[None, :]
+    rows = np.hstack([s, -np.eye(m), np.zeros((m, m))])
+    weight = np.concatenate([np.zeros(n), w, np.zeros(m)])[None, :]
+    constraints = [LinearConstraint(rows, lb=0), LinearConstraint(weight, lb=fraction * w.sum())]
+    if seen is not None:
+        pattern = np.hstack([(s > 0).astype(float), np.zeros((m, m)), -np.eye(m)])
+        sampled = np.concatenate([np.zeros(n + m), seen])[None, :]
+        constraints += [
+            LinearConstraint(pattern, lb=0),
+            LinearConstraint(sampled, lb=SEEN_SHARE * seen.sum() - 1e-9),
+        ]
     res = milp(
-        np.concatenate([np.ones(n), np.zeros(m)]),
-        constraints=[LinearConstraint(rows, lb=0), LinearConstraint(weight, lb=fraction * w.sum())],
-        integrality=np.ones(n + m),
+        np.concatenate([np.ones(n), np.zeros(2 * m)]),
+        constraints=constraints,
+        integrality=np.ones(n + 2 * m),
         bounds=Bounds(0, 1),
     )
     return int(round(res.fun))
@@ -336,8 +349,17 @@ def test_partial_cover_claims_hold_independently(part, formulation, rows):
     assert p.covered_fraction >= fraction and w[met].sum() >= fraction * w.sum() * (1 - 1e-3)
     left = sorted({f for k in np.flatnonzero(~met & (w > 0)) for f in row_faces[k]})
     assert sorted(p.left_out.ids) == left
-    assert doc.solver.status == "optimal"
-    assert doc.solver.objective == len(chosen) == partial_optimum(s, w, fraction)
+    sampled = (s[:, chosen] > 0).any(axis=1)  # a view samples it, at whatever density
+    assert p.seen_area_mm2 == pytest.approx(w[sampled].sum(), rel=1e-3)
+    seen = None
+    if formulation == "density" and rows == "patches":  # left short of r̄, still seen
+        seen = w
+        assert w[sampled].sum() >= SEEN_SHARE * w.sum() - 1e-9
+    best = partial_optimum(s, w, fraction, seen)
+    assert doc.solver.objective == len(chosen) >= best >= partial_optimum(s, w, fraction)
+    assert doc.solver.bound is not None and doc.solver.bound <= best
+    if doc.solver.status == "optimal":  # proven: views were not added for the seen share
+        assert len(chosen) == partial_optimum(s, w, fraction)
     strict = plan(
         part,
         request.model_copy(update={"target": Target(**target, min_coverage=1.0)}),  # type: ignore[arg-type]

@@ -348,7 +348,8 @@ def test_the_time_limit_is_the_whole_plans_budget(monkeypatch):
     want = max(pipeline.FINAL_SHARE * budget, budget * (1 - pipeline.AFTER_SHARE) - spent)
     assert limits == [pytest.approx(want, abs=1e-3)]
     late = pipeline.plan(part, request, load_s=budget)  # nothing left: the floor
-    assert late.solver.status == "optimal"
+    assert late.solver.status in ("optimal", "heuristic")  # heuristic: grown to be seen
+    assert late.partial is not None and late.partial.covered_fraction >= 0.99
     assert limits[-1] == pytest.approx(pipeline.FINAL_SHARE * budget)
     grown = PlanRequest(**{**request.model_dump(), "candidates": {"count": 30, "seed": 2}})
     assert pipeline.plan(part, grown).adaptive  # rounds when there is time

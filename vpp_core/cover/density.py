@@ -55,6 +55,14 @@ class CoverModel:
     recessed: np.ndarray | None = None  # (rows,) bool: recessed patches (vpp_core.cover.access)
     reach: np.ndarray | None = None  # (rows,) u_p in (0, 1]: the share its best candidate samples
 
+    def seen_rows(self) -> sp.csr_array:
+        """(rows, N) 1 where a view samples a row (STRAY_RAYS rays or more on it, the entries
+        of `matrix`), at whatever density."""
+        pattern = sp.csr_array(self.matrix, copy=True)
+        pattern.eliminate_zeros()  # a stored zero samples nothing
+        pattern.data[:] = 1.0
+        return pattern
+
     def row_areas(self) -> np.ndarray:
         """(rows,) mm²: the areas of each row's faces, summed."""
         rows = self.matrix.shape[0]

@@ -47,7 +47,7 @@ from __future__ import annotations
 import functools
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import highspy
 import numpy as np
@@ -365,3 +365,89 @@ def _model(g: _Merged, c: np.ndarray, required: float) -> highspy.HighsLp:
     ]
     lp.integrality_ = kinds
     return lp
+
+
+def seen_columns(
+    A: sp.csr_array, w: np.ndarray, selected: np.ndarray, fraction: float, costs: np.ndarray
+) -> np.ndarray:
+    """`selected` (K,) columns grown until the rows of A (M, N) their coefficients add up to 1
+    in weigh at least `fraction` of the weight w (M,) of the rows any column has an entry in:
+    greedily (`lazy_picks`), the column adding the most Σ_i w_i min(r_i, A_ij) per cost
+    (costs, (N,)) first, as greedy_partial does; sorted. With A what each view samples of a
+    row at whatever density (CoverModel.seen_rows), a partial cover's rows left short of the
+    target are still seen."""
+    csc = sp.csc_array(A)
+    ip, ix, dv = csc.indptr, csc.indices, csc.data
+    need = fraction * float(w[np.diff(A.indptr) > 0].sum()) - _slack(w)
+    r = np.maximum(1.0 - coverage(A, selected), 0.0)
+    r[r <= BUILD_TOL] = 0.0
+    chosen = set(int(j) for j in selected)
+
+    def gain(j: int) -> float:
+        """Column j's progress on the rows still short."""
+        if j in chosen:
+            return 0.0
+        rows = ix[ip[j] : ip[j + 1]]
+        return float((np.minimum(r[rows], dv[ip[j] : ip[j + 1]]) * w[rows]).sum())
+
+    picks = lazy_picks(A.shape[1], costs, gain)
+    while float(w[r <= BUILD_TOL].sum()) < need and (j := next(picks, None)) is not None:
+        rows = ix[ip[j] : ip[j + 1]]
+        r[rows] = np.maximum(r[rows] - dv[ip[j] : ip[j + 1]], 0.0)
+        r[r <= BUILD_TOL] = 0.0
+        chosen.add(j)
+    return np.array(sorted(chosen), dtype=np.int64)
+
+
+def prune_seen(
+    A: sp.csr_array,
+    w: np.ndarray,
+    required: float,
+    seen: tuple[sp.csr_array, np.ndarray, float],
+    selected: np.ndarray,
+    costs: np.ndarray,
+) -> np.ndarray:
+    """(K',) sorted subset of `selected` (K,) that still satisfies rows of A (M, N) weighing
+    `required` of w (M,), and with `seen` = (V, v, fraction) as seen_columns takes them, rows
+    of V weighing `fraction` of v's rows with an entry: each column dropped, the costliest
+    first, where both hold without it (a column the cover picked may be redundant once
+    seen_columns added others)."""
+    V, v, fraction = seen
+    needs = [(A, w, required), (V, v, fraction * float(v[np.diff(V.indptr) > 0].sum()))]
+    checks = [(sp.csc_array(m), coverage(m, selected), wt, need) for m, wt, need in needs]
+    keep = [int(j) for j in selected]
+    for j in selected[np.argsort(-costs[selected], kind="stable")]:
+        if all(_still_met(csc, cov, wt, need, j) for csc, cov, wt, need in checks):
+            keep.remove(int(j))
+            for csc, cov, _, _ in checks:
+                cov[csc.indices[csc.indptr[j] : csc.indptr[j + 1]]] -= csc.data[
+                    csc.indptr[j] : csc.indptr[j + 1]
+                ]
+    return np.array(sorted(keep), dtype=np.int64)
+
+
+def _still_met(csc: sp.csc_array, cov: np.ndarray, w: np.ndarray, need: float, j: int) -> bool:
+    """Whether the rows of csc (M, N) at coverage `cov` (M,) still weigh `need` of w (M,)
+    satisfied without column j."""
+    part = slice(csc.indptr[j], csc.indptr[j + 1])
+    rows = csc.indices[part]
+    lost = (cov[rows] >= 1.0 - BUILD_TOL) & (cov[rows] - csc.data[part] < 1.0 - BUILD_TOL)
+    met = float(w[cov >= 1.0 - BUILD_TOL].sum())
+    return met - float(w[rows][lost].sum()) >= need - _slack(w)
+
+
+def grown(
+    A: sp.csr_array, w: np.ndarray, cover: PartialCover, selected: np.ndarray, costs: np.ndarray
+) -> PartialCover:
+    """`cover` (of A (M, N), weights w (M,)) with the columns `selected` (K,) instead, which
+    still reach its required weight, at costs (N,): the bound stays a bound, and a proven
+    cover that changed is proven only where it costs no more ("heuristic" else)."""
+    r = cover.result
+    if np.array_equal(selected, r.selected):
+        return cover
+    objective = float(costs[selected].sum())
+    gap = None if r.bound is None else (objective - r.bound) / max(objective, 1e-12)
+    proven = r.bound is not None and objective <= r.bound + 1e-9
+    status = "optimal" if proven else ("heuristic" if r.status == "optimal" else r.status)
+    res = replace(r, selected=selected, objective=objective, gap=gap, status=status)
+    return _outcome(A, w, res, cover.required)

@@ -26,7 +26,7 @@ PROFILES: dict[str, dict[str, object]] = {
         "retry_tilt_deg": 60.0,
         "standoff": "target",
         "rows": "patches",
-        "min_coverage": 0.999,
+        "min_coverage": 0.99,
         "adaptive": True,
         "sphere": 200,
     },
@@ -59,7 +59,7 @@ class Target(_Strict):
         le=1,
         description="fraction of the coverable area to cover; 1 = every coverable row "
         "(SPEC §3-4); below 1 a partial cover may leave small areas out, listed in the plan's "
-        "`partial.left_out`; default: the profile's (0.999; paper: 1)",
+        "`partial.left_out`, and seen by some view; default: the profile's (0.99; paper: 1)",
     )
 
     @property
@@ -432,6 +432,11 @@ class PartialInfo(BaseModel):
     covered_area_mm2: float
     covered_fraction: float
     left_out: LeftOut
+    seen_area_mm2: float | None = None
+    """The coverable area in rows some selected view samples, at whatever density (3 rays or
+    more on a patch): at least 0.999 of it where the cover may leave more short of r̄ (density
+    rows; vpp_core.plan.pipeline.SEEN_SHARE)."""
+    seen_fraction: float | None = None
 
 
 class Timings(BaseModel):

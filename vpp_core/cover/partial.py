@@ -414,26 +414,37 @@ def prune_seen(
     seen_columns added others)."""
     V, v, fraction = seen
     needs = [(A, w, required), (V, v, fraction * float(v[np.diff(V.indptr) > 0].sum()))]
-    checks = [(sp.csc_array(m), coverage(m, selected), wt, need) for m, wt, need in needs]
+    checks = [_Tally(sp.csc_array(m), coverage(m, selected), wt, need) for m, wt, need in needs]
     keep = [int(j) for j in selected]
     for j in selected[np.argsort(-costs[selected], kind="stable")]:
-        if all(_still_met(csc, cov, wt, need, j) for csc, cov, wt, need in checks):
+        lost = [t.lost(int(j)) for t in checks]
+        if all(t.met - x >= t.need - _slack(t.w) for t, x in zip(checks, lost, strict=True)):
             keep.remove(int(j))
-            for csc, cov, _, _ in checks:
-                cov[csc.indices[csc.indptr[j] : csc.indptr[j + 1]]] -= csc.data[
-                    csc.indptr[j] : csc.indptr[j + 1]
-                ]
+            for t, x in zip(checks, lost, strict=True):
+                t.drop(int(j), x)
     return np.array(sorted(keep), dtype=np.int64)
 
 
-def _still_met(csc: sp.csc_array, cov: np.ndarray, w: np.ndarray, need: float, j: int) -> bool:
-    """Whether the rows of csc (M, N) at coverage `cov` (M,) still weigh `need` of w (M,)
-    satisfied without column j."""
-    part = slice(csc.indptr[j], csc.indptr[j + 1])
-    rows = csc.indices[part]
-    lost = (cov[rows] >= 1.0 - BUILD_TOL) & (cov[rows] - csc.data[part] < 1.0 - BUILD_TOL)
-    met = float(w[cov >= 1.0 - BUILD_TOL].sum())
-    return met - float(w[rows][lost].sum()) >= need - _slack(w)
+class _Tally:
+    """Rows of `csc` (M, N) at coverage `cov` (M,): the weight w (M,) they satisfy (`met`,
+    kept as columns are dropped) against the weight they must (`need`)."""
+
+    def __init__(self, csc: sp.csc_array, cov: np.ndarray, w: np.ndarray, need: float) -> None:
+        self.csc, self.cov, self.w, self.need = csc, cov, w, need
+        self.met = float(w[cov >= 1.0 - BUILD_TOL].sum())
+
+    def lost(self, j: int) -> float:
+        """The satisfied weight column j's removal would unsatisfy."""
+        part = slice(self.csc.indptr[j], self.csc.indptr[j + 1])
+        rows, cov = self.csc.indices[part], self.cov[self.csc.indices[part]]
+        gone = (cov >= 1.0 - BUILD_TOL) & (cov - self.csc.data[part] < 1.0 - BUILD_TOL)
+        return float(self.w[rows][gone].sum())
+
+    def drop(self, j: int, lost: float) -> None:
+        """Column j removed, unsatisfying `lost` of the weight."""
+        part = slice(self.csc.indptr[j], self.csc.indptr[j + 1])
+        self.cov[self.csc.indices[part]] -= self.csc.data[part]
+        self.met -= lost
 
 
 def grown(

@@ -2,7 +2,7 @@
 the view-sphere baseline; one JSON line per (mesh, formulation, setting).
 
     python bench/quality.py [MESH...] [--formulations density visibility]
-                            [--settings default paper tilt best open4] [--time-limit 60]
+                            [--settings default paper tilt best open4 world] [--time-limit 60]
                             [--sphere 1000] [--elements 1] [--points 100000] [--out DIR]
 
 Every setting runs `vpp plan MESH --units U ... -q -o DIR/<name>.json` as a child process (the
@@ -20,7 +20,9 @@ The settings:
 - `paper`: --profile paper (the previous default: gazes along the normal at 500 mm, face rows);
 - `tilt`: --profile paper --tilt 30 --min-coverage 0.999 (the flags docs/cad-meshes.md named);
 - `best`: the same with --candidates 2000;
-- `open4`: --open-min 4 (recessed patches weigh nothing in the partial cover).
+- `open4`: --open-min 4 (recessed patches weigh nothing in the partial cover);
+- `world`: --roll world (the world's +Z as every camera's image-up, the default before
+  session 51).
 
 The element and point figures come on lines of their own after the plans, `sphere` lines last: Linux
 keeps a parent's peak RSS in the `ru_maxrss` of the children it forks, so tracing in this
@@ -70,6 +72,7 @@ SETTINGS = {
     "best": ["--profile", "paper", "--tilt", "30", "--min-coverage", "0.999"]
     + ["--candidates", "2000"],
     "open4": ["--open-min", "4"],
+    "world": ["--roll", "world"],
 }
 
 

@@ -233,6 +233,12 @@ def _plan_options(p: argparse.ArgumentParser) -> None:
         "generated candidate samples (default profile 200, paper 0; 0: none)",
     )
     p.add_argument(
+        "--roll",
+        choices=["fitted", "world"],
+        help="cameras' roll: fitted turns a camera where that frames more of the surface "
+        "(default profile), world keeps world +Z as image up (paper)",
+    )
+    p.add_argument(
         "--standoff",
         type=float,
         metavar="MM",
@@ -568,6 +574,7 @@ def _request(args: argparse.Namespace) -> PlanRequest:
                 standoff_mm=args.standoff,
                 adaptive=args.adaptive,
                 sphere=args.sphere,
+                roll=args.roll,
             )
         )
         return PlanRequest(

@@ -180,7 +180,7 @@ def test_claims_hold_independently(part, formulation, tilt):
         candidates=CandidateGenerator(count=30, seed=3, tilt_deg=tilt),
     )
     doc = PlanDocument.model_validate_json(plan(part, request).model_dump_json())
-    assert doc.candidate_info.tilt_deg == tilt
+    assert doc.candidate_info.tilt_deg == tilt and doc.candidate_info.roll == "fitted"
     c2w_all = np.array([_c2w(c) for c in doc.candidates])
     r = recount(part, SMALL, c2w_all).toarray()
     chosen = [v.id for v in doc.viewpoints]

@@ -283,7 +283,7 @@ def test_a_round_whose_candidates_raise_the_quick_count_is_undone(monkeypatch, l
     from vpp_core.plan import pipeline
 
     pools = script_quick_counts(monkeypatch, [10, 9, last])
-    doc = pipeline.plan(load_mesh(sample_stl(), "stl"), bushing_request(30))
+    doc = pipeline.plan(load_mesh(sample_stl(), "stl"), bushing_request(12))
     first, second, third = doc.adaptive
     assert first.added > 0 and second.added > 0 and third.added == 0
     assert third.candidates == pools[2] == pools[1] + second.added
@@ -310,7 +310,7 @@ def test_the_last_rounds_candidates_are_judged_when_no_more_rounds_fit(monkeypat
         return real_round_s(*args) if len(counts) > 2 or len(calls) == 1 else float("inf")
 
     monkeypatch.setattr(adaptive, "round_s", round_s)
-    doc = pipeline.plan(load_mesh(sample_stl(), "stl"), bushing_request(30))
+    doc = pipeline.plan(load_mesh(sample_stl(), "stl"), bushing_request(12))
     *traced, judged = doc.adaptive
     assert len(traced) == len(counts) - 1 <= adaptive.ROUNDS and judged.added == 0
     assert all(r.added > 0 for r in traced) and judged.views == counts[-1]

@@ -9,6 +9,8 @@
    sample (not occluded, not inside) and it stays `clearance_mm` away from the part;
    otherwise try the next direction (each one on both sides of the surface); a sample no
    direction serves is dropped.
+4. With `fit_roll`, turn each camera about its gaze where that frames more of the surface
+   (`vpp_core.candidates.roll`); else SPEC §1's default up.
 Seeded and deterministic.
 
 The directions: with `tilt_deg` > 0, TILT_TRIES directions drawn uniformly by solid angle
@@ -35,6 +37,7 @@ from scipy.spatial import cKDTree
 
 from vpp_core.camera.pose import Viewpoints, make_viewpoints
 from vpp_core.camera.sensor import Sensor
+from vpp_core.candidates.roll import fitted, surface_samples
 from vpp_core.cell.reach import Allowed
 from vpp_core.errors import VppError
 from vpp_core.mesh.part import Part
@@ -68,6 +71,7 @@ class GeneratorSettings:
     tilt_deg: float = 0.0  # largest angle between a gaze and the reversed normal, [0, 90)
     retry_tilt_deg: float = 0.0  # wider cone tried before a sample is dropped (0: none)
     standoff_mm: float | None = None  # camera-sample distance (None: the working distance)
+    fit_roll: bool = False  # turned where that frames more (vpp_core.candidates.roll)
 
 
 @dataclass(frozen=True)
@@ -121,8 +125,11 @@ def generate(
         part, backend, points, directions, standoff, settings.clearance_mm, allowed
     )
     keep = np.isfinite(positions).all(axis=1)
+    views = make_viewpoints(positions[keep], gazes[keep])
+    if settings.fit_roll:
+        views = fitted(views, sensor, surface_samples(part), standoff)
     return GeneratedCandidates(
-        views=make_viewpoints(positions[keep], gazes[keep]),
+        views=views,
         spacing_mm=spacing,
         planning_faces=len(planning.faces),
         dropped=int((~keep).sum()),

@@ -12,6 +12,7 @@ import numpy as np
 
 from vpp_core.camera.pose import Viewpoints, make_viewpoints
 from vpp_core.camera.sensor import Sensor
+from vpp_core.candidates.roll import fitted, surface_samples
 from vpp_core.cell.reach import Allowed
 from vpp_core.mesh.part import Part
 
@@ -32,9 +33,11 @@ def view_sphere(
     count: int = 1000,
     shells: int = 2,
     allowed: Allowed | None = None,
+    fit_roll: bool = False,
 ) -> Viewpoints:
     """`count` viewpoints on `shells` spheres around the part's box centre (mm, part frame),
-    less those `allowed` (the setup's vpp_core.cell.reach predicate) refuses."""
+    less those `allowed` (the setup's vpp_core.cell.reach predicate) refuses; with
+    `fit_roll`, turned about their gazes as vpp_core.candidates.roll turns the generator's."""
     lo, hi = part.bounds
     centre = (lo + hi) / 2
     half = float(np.linalg.norm(hi - lo)) / 2
@@ -42,12 +45,15 @@ def view_sphere(
         sensor.near_mm + half, max(sensor.working_distance, sensor.near_mm + half), shells
     )
     split = np.array_split(np.arange(count), shells)
-    positions, gazes = [], []
+    positions, gazes, depths = [], [], []
     for radius, ids in zip(radii, split, strict=True):
         d = fibonacci_directions(len(ids))
         positions.append(centre + radius * d)
         gazes.append(-d)
+        depths.append(np.full(len(ids), radius))
     views = make_viewpoints(np.vstack(positions), np.vstack(gazes))
+    if fit_roll:
+        views = fitted(views, sensor, surface_samples(part), np.concatenate(depths))
     if allowed is None:
         return views
     return views.take(np.flatnonzero(allowed(views.positions)))

@@ -4,7 +4,7 @@ After a quick cover of the current pool (greedy with redundancy removal: determi
 plan is the same wherever it is computed), the rows that force views — rows private to one
 selected view, and rows that at most FEW_CANDIDATES candidates sample — become targets: each
 gets cameras at the stand-off looking back at its centre, along its normal and tilted up to
-AIM_TILT_DEG, placed and checked as the generator places its own (vpp_core.candidates). Only
+AIM_TILT_DEG, placed, checked and turned as the generator does its own (vpp_core.candidates). Only
 the new candidates are traced (R grows by columns); the round repeats while it adds
 candidates and the quick count improves, at most ROUNDS times. A round whose candidates
 raised the quick count is taken back: a patch asks for what its best candidate samples of it
@@ -28,6 +28,7 @@ import numpy as np
 
 from vpp_core.camera.pose import Viewpoints, make_viewpoints
 from vpp_core.candidates.generator import place, tilt
+from vpp_core.candidates.roll import fitted, surface_samples
 from vpp_core.cell.reach import Allowed
 from vpp_core.cover.density import CoverModel
 from vpp_core.cover.partial import PartialCover
@@ -179,7 +180,10 @@ def aimed_views(
         positions.append(pos[ok])
         gazes.append(gaze[ok])
         directions = directions[1:] + directions[:1]  # the next view starts one direction on
-    return make_viewpoints(np.vstack(positions), np.vstack(gazes))
+    views = make_viewpoints(np.vstack(positions), np.vstack(gazes))
+    if spec.roll == "fitted":
+        views = fitted(views, request.sensor, surface_samples(part), standoff)
+    return views
 
 
 def target_rows(model: CoverModel, selected: np.ndarray) -> np.ndarray:

@@ -29,6 +29,7 @@ PROFILES: dict[str, dict[str, object]] = {
         "min_coverage": 0.99,
         "adaptive": True,
         "sphere": 200,
+        "roll": "fitted",
     },
     "paper": {
         "tilt_deg": 0.0,
@@ -38,6 +39,7 @@ PROFILES: dict[str, dict[str, object]] = {
         "min_coverage": 1.0,
         "adaptive": False,
         "sphere": 0,
+        "roll": "world",
     },
 }
 """What each profile fills in where a request leaves a field out (docs/quality.md): `default`,
@@ -132,6 +134,14 @@ class CandidateGenerator(_Strict):
         "inside seen through a window, a gap between gears) join the pool "
         "(docs/quality.md); at most 1 000, the baseline's count; default: the profile's (200; "
         "paper: 0)",
+    )
+    roll: Literal["fitted", "world"] | None = Field(
+        None,
+        description="the cameras' roll about their gazes: `fitted` turns a camera where that "
+        "frames at least 10 % more of the surface facing it than world +Z as image-up does, "
+        "so that a long part gets as few views whichever way it lies in its file; `world` "
+        "keeps the default up (world +Z on the image plane); default: the profile's (fitted; "
+        "paper: world)",
     )
 
 
@@ -240,6 +250,7 @@ class PlanRequest(_Strict):
                 "standoff_mm": spec.standoff_mm or standoff or self.sensor.working_distance,
                 "adaptive": chosen["adaptive"] if spec.adaptive is None else spec.adaptive,
                 "sphere": chosen["sphere"] if spec.sphere is None else spec.sphere,
+                "roll": chosen["roll"] if spec.roll is None else spec.roll,
             }
             self.candidates = spec.model_copy(update=update)
         return self
@@ -297,6 +308,8 @@ class CandidateInfo(BaseModel):
     tilt_deg: float | None = None
     retry_tilt_deg: float | None = None
     standoff_mm: float | None = None
+    roll: Literal["fitted", "world"] | None = None
+    """How the cameras' roll was chosen (CandidateGenerator.roll)."""
     sphere: int = 0
     """View-sphere candidates that joined the pool: they sample surface no generated one
     does (their ids follow the generated ones)."""

@@ -148,6 +148,7 @@ def candidates_for(
             spec.tilt_deg or 0.0,
             spec.retry_tilt_deg or 0.0,
             spec.standoff_mm,
+            spec.roll == "fitted",
         )
         table = table_candidates(
             part,
@@ -169,6 +170,7 @@ def candidates_for(
             tilt_deg=spec.tilt_deg,
             retry_tilt_deg=spec.retry_tilt_deg,
             standoff_mm=gen.standoff_mm,
+            roll=spec.roll,
         )
         return reachable_candidates(part, cell, gen.views, info)  # the robot's, turned
     n = len(spec.viewpoints)
@@ -478,6 +480,7 @@ def grow(
         allowed=cameras_allowed,
         keep=keep,
         deadline=deadline,
+        fit_roll=isinstance(spec, CandidateGenerator) and spec.roll == "fitted",
     )
     info = info.model_copy(update={"sphere": reached.added, "sphere_traced": reached.traced})
     views, trace = reached.views, reached.trace

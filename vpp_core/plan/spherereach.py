@@ -67,19 +67,21 @@ def sphere_reach(
     allowed: Allowed | None = None,
     keep: Callable[[Viewpoints], Viewpoints] | None = None,
     deadline: float = float("inf"),
+    fit_roll: bool = False,
 ) -> Reached:
     """`views` (R in `trace`, through `sensor`) with those of `count` view-sphere viewpoints
     around `part` that sample rows the pool does not (see module docstring), scouted through
     `scout_sensor(sensor)`; cameras only where `allowed` lets them be and `keep` keeps them;
     none when their scouting, at the pool's rate per pixel, would end after `deadline`
-    (time.perf_counter() seconds)."""
+    (time.perf_counter() seconds); with `fit_roll` the cameras are turned as the generator's
+    (vpp_core.candidates.roll)."""
     unchanged = Reached(views, trace, 0, 0)
     scout = scout_sensor(sensor)
     factor = sensor.n_pixels / scout.n_pixels  # full-image rays per scout ray
     per_view = trace.seconds / max(len(views), 1) / factor
     if count < 1 or time.perf_counter() + per_view * count > deadline:
         return unchanged
-    sphere = view_sphere(part, sensor, count, allowed=allowed)
+    sphere = view_sphere(part, sensor, count, allowed=allowed, fit_roll=fit_roll)
     sphere = sphere if keep is None else keep(sphere)
     if not len(sphere):
         return unchanged

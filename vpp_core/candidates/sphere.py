@@ -51,9 +51,8 @@ def view_sphere(
         positions.append(centre + radius * d)
         gazes.append(-d)
         depths.append(np.full(len(ids), radius))
-    views = make_viewpoints(np.vstack(positions), np.vstack(gazes))
-    if fit_roll:
-        views = fitted(views, sensor, surface_samples(part), np.concatenate(depths))
-    if allowed is None:
-        return views
-    return views.take(np.flatnonzero(allowed(views.positions)))
+    views, depth = make_viewpoints(np.vstack(positions), np.vstack(gazes)), np.concatenate(depths)
+    if allowed is not None:  # the views a setup refuses are not turned
+        kept = np.flatnonzero(allowed(views.positions))
+        views, depth = views.take(kept), depth[kept]
+    return fitted(views, sensor, surface_samples(part), depth) if fit_roll else views

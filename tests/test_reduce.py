@@ -9,7 +9,7 @@ import scipy.sparse as sp
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from vpp_core.cover.reduce import reduce_cover
+from vpp_core.cover.reduce import reduce_cover, undominated_columns
 from vpp_core.cover.setcover import COVER_TOL, is_cover, solve_cover
 
 
@@ -58,6 +58,29 @@ def test_solve_cover_with_reductions_is_optimal_and_a_cover(model) -> None:
     assert is_cover(sp.csr_array(A), result.selected)
     assert result.status == "optimal"
     assert result.objective == brute_optimum(A, costs) == result.bound
+
+
+def dominates(A: np.ndarray, costs: np.ndarray, k: int, j: int) -> bool:
+    """Column k fully covers every row j touches at no higher cost; of two equal full columns
+    at one cost the first dominates (the definition, pair by pair). A column that touches no
+    row is left alone (`blocks` leaves it out)."""
+    rows = A[:, j] > 0
+    if k == j or not rows.any() or costs[k] > costs[j] or np.any(A[rows, k] < 1 - COVER_TOL):
+        return False
+    twin = np.array_equal(A[:, k] > 0, rows) and np.all(A[rows, j] >= 1 - COVER_TOL)
+    return not (twin and costs[k] == costs[j] and k > j)
+
+
+@settings(max_examples=300, deadline=None)
+@given(models(), st.integers(0, 3))
+def test_a_column_is_dropped_exactly_when_another_dominates_it(model, copies: int) -> None:
+    """Pair by pair against the definition, with copied columns (ties) in the model."""
+    A, costs = model
+    for j in range(min(copies, A.shape[1] - 1)):
+        A[:, j + 1], costs[j + 1] = A[:, j], costs[j]
+    n = A.shape[1]
+    expected = [j for j in range(n) if not any(dominates(A, costs, k, j) for k in range(n))]
+    assert undominated_columns(sp.csr_array(A), costs).tolist() == expected
 
 
 def test_dominated_and_identical_columns_go_essential_columns_are_fixed() -> None:

@@ -173,42 +173,31 @@ def _implies(A: sp.csr_array, k: int, i: int) -> bool:
 
 
 def undominated_columns(A: sp.csr_array, costs: np.ndarray) -> np.ndarray:
-    """(n',) sorted indices of the columns no other column dominates (ties: first kept)."""
+    """(n',) sorted indices of the columns no other column dominates (ties: first kept).
+
+    Column k dominates j when it fully covers every row j touches (A[i, k] >= 1 - TOL wherever
+    A[i, j] > 0) at no higher cost; of two that dominate each other (the same rows, each full
+    on all of them, equal costs) the first stays. Full cover (not just A[:, k] >= A[:, j]) is
+    what makes j redundant when k is chosen too: with partial coverage two columns add up, so
+    a merely larger k does not replace j. Domination is transitive, so a column is dropped
+    exactly when some other column dominates it: counted for all pairs at once as
+    |rows(j) ∩ full rows(k)| = size(j), one sparse product."""
     n = A.shape[1]
     if n < 2 or A.shape[0] == 0:
         return np.arange(n)
     csc = sp.csc_array(A)
-    csc.sort_indices()
-    binary = sp.csc_array((np.ones_like(csc.data), csc.indices, csc.indptr), shape=csc.shape)
-    overlap = sp.csr_array(binary.T @ binary)
-    size = np.diff(csc.indptr)
+    touched = sp.csc_array((np.ones(csc.nnz), csc.indices, csc.indptr), shape=csc.shape)
+    full_data = (csc.data >= 1.0 - TOL).astype(np.float64)
+    full = sp.csc_array((full_data, csc.indices, csc.indptr), shape=csc.shape)
+    size, full_size = np.diff(csc.indptr), np.asarray(full.sum(axis=0)).ravel()
+    within = sp.coo_array(touched.T @ full)  # [j, k]: rows of j on which k is full
+    j, k = within.row, within.col
+    dominated = (within.data == size[j]) & (j != k) & (costs[k] <= costs[j])
+    mirror = (size[k] == size[j]) & (full_size[j] == size[j]) & (costs[k] == costs[j])
+    dominated &= ~(mirror & (k > j))
     alive = np.ones(n, bool)
-    for j in np.argsort(size, kind="stable"):
-        lo, hi = overlap.indptr[j], overlap.indptr[j + 1]
-        ks = overlap.indices[lo:hi][overlap.data[lo:hi] == size[j]]
-        for k in ks:
-            if k != j and alive[k] and _dominates(csc, k, j, costs):
-                alive[j] = False
-                break
+    alive[j[dominated]] = False
     return np.flatnonzero(alive)
-
-
-def _dominates(csc: sp.csc_array, k: int, j: int, costs: np.ndarray) -> bool:
-    """Column k fully covers every row of j, at no higher cost (ties: the first column stays).
-
-    Full cover (not just A[:, k] >= A[:, j]) is what makes j redundant when k is chosen too:
-    with partial coverage two columns add up, so a merely larger k does not replace j.
-    """
-    if costs[k] > costs[j]:
-        return False
-    rows_j = csc.indices[csc.indptr[j] : csc.indptr[j + 1]]
-    rows_k = csc.indices[csc.indptr[k] : csc.indptr[k + 1]]
-    vals_k = csc.data[csc.indptr[k] : csc.indptr[k + 1]][np.searchsorted(rows_k, rows_j)]
-    if np.any(vals_k < 1.0 - TOL):
-        return False
-    vals_j = csc.data[csc.indptr[j] : csc.indptr[j + 1]]
-    mirror = len(rows_k) == len(rows_j) and np.all(vals_j >= 1.0 - TOL)
-    return not (mirror and costs[k] == costs[j] and k > j)
 
 
 def blocks(A: sp.csr_array) -> list[tuple[np.ndarray, np.ndarray]]:

@@ -292,34 +292,30 @@ def partial_optimum(
     where `seen` (rows,) weights are given, with rows of seen-weight >= SEEN_SHARE of theirs
     sampled (an entry > 0) by some chosen column. Equal rows share one z (their weights
     summed), equal patterns one sampled indicator: the same optimum from a smaller model."""
-    n = s.shape[1]
+    n, zeros = s.shape[1], np.zeros
     rows, met_of = np.unique(s, axis=0, return_inverse=True)
-    met_w = np.bincount(met_of.ravel(), w, len(rows))
-    m = len(rows)
+    pattern, seen_of = np.unique(s > 0, axis=0, return_inverse=True)
+    pattern = pattern if seen is not None else pattern[:0]
+    m, k = len(rows), len(pattern)  # variables: y (n), met z (m), sampled q (k)
+    met_w = np.bincount(met_of.ravel(), w, m)
     constraints = [
-        LinearConstraint(np.hstack([rows, -np.eye(m)]), lb=0),
-        LinearConstraint(np.concatenate([np.zeros(n), met_w])[None, :], lb=fraction * w.sum()),
+        LinearConstraint(np.hstack([rows, -np.eye(m), zeros((m, k))]), lb=0),
+        LinearConstraint(
+            np.concatenate([zeros(n), met_w, zeros(k)])[None, :], lb=fraction * w.sum()
+        ),
     ]
-    size = n + m
     if seen is not None:
-        pattern, seen_of = np.unique(s > 0, axis=0, return_inverse=True)
-        k = len(pattern)
         seen_w = np.bincount(seen_of.ravel(), seen, k)
-        constraints = [
-            LinearConstraint(np.hstack([c.A, np.zeros((c.A.shape[0], k))]), lb=c.lb)
-            for c in constraints
-        ]
-        block = np.hstack([pattern.astype(float), np.zeros((k, m)), -np.eye(k)])
-        total = np.concatenate([np.zeros(n + m), seen_w])[None, :]
         constraints += [
-            LinearConstraint(block, lb=0),
-            LinearConstraint(total, lb=SEEN_SHARE * seen.sum() - 1e-9),
+            LinearConstraint(np.hstack([pattern.astype(float), zeros((k, m)), -np.eye(k)]), lb=0),
+            LinearConstraint(
+                np.concatenate([zeros(n + m), seen_w])[None, :], lb=SEEN_SHARE * seen.sum() - 1e-9
+            ),
         ]
-        size += k
     res = milp(
-        np.concatenate([np.ones(n), np.zeros(size - n)]),
+        np.concatenate([np.ones(n), zeros(m + k)]),
         constraints=constraints,
-        integrality=np.ones(size),
+        integrality=np.ones(n + m + k),
         bounds=Bounds(0, 1),
     )
     return int(round(res.fun))

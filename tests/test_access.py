@@ -161,7 +161,7 @@ def test_the_plan_gives_recessed_rows_no_weight_and_lists_what_it_leaves_of_them
     assert doc.partial is not None and not set(listed) & set(doc.partial.left_out.ids)
     assert doc.partial.covered_fraction >= doc.target.min_coverage
     assert doc.partial.coverable_area_mm2 < default.partial.coverable_area_mm2
-    assert len(doc.viewpoints) < len(default.viewpoints)  # 11 against 14, both proven
+    assert len(doc.viewpoints) < len(default.viewpoints)  # 8 against 11 (2-core Xeon, HiGHS 1.16)
 
 
 def test_the_setups_floor_closes_what_faces_it():

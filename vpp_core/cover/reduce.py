@@ -186,13 +186,15 @@ def undominated_columns(A: sp.csr_array, costs: np.ndarray) -> np.ndarray:
     if n < 2 or A.shape[0] == 0:
         return np.arange(n)
     csc = sp.csc_array(A)
-    touched = sp.csc_array((np.ones(csc.nnz), csc.indices, csc.indptr), shape=csc.shape)
-    full_data = (csc.data >= 1.0 - TOL).astype(np.float64)
-    full = sp.csc_array((full_data, csc.indices, csc.indptr), shape=csc.shape)
+    ones = np.ones(csc.nnz, np.float32)  # counts of rows: exact in float32 below 2**24
+    touched = sp.csc_array((ones, csc.indices, csc.indptr), shape=csc.shape)
+    full = sp.csc_array((ones * (csc.data >= 1.0 - TOL), csc.indices, csc.indptr), csc.shape)
     size, full_size = np.diff(csc.indptr), np.asarray(full.sum(axis=0)).ravel()
-    within = sp.coo_array(touched.T @ full)  # [j, k]: rows of j on which k is full
-    j, k = within.row, within.col
-    dominated = (within.data == size[j]) & (j != k) & (costs[k] <= costs[j])
+    within = sp.csr_array(touched.T @ full)  # [j, k]: rows of j on which k is full
+    j = np.repeat(np.arange(n), np.diff(within.indptr))
+    inside = within.data == size[j]  # k full on all of j's rows; the rest on these pairs only
+    j, k = j[inside], within.indices[inside]
+    dominated = (j != k) & (costs[k] <= costs[j])
     mirror = (size[k] == size[j]) & (full_size[j] == size[j]) & (costs[k] == costs[j])
     dominated &= ~(mirror & (k > j))
     alive = np.ones(n, bool)

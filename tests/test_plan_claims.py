@@ -292,28 +292,30 @@ def partial_optimum(
     where `seen` (rows,) weights are given, with rows of seen-weight >= SEEN_SHARE of theirs
     sampled (an entry > 0) by some chosen column. Equal rows share one z (their weights
     summed), equal patterns one sampled indicator: the same optimum from a smaller model."""
-    n, zeros = s.shape[1], np.zeros
+    n = s.shape[1]
     rows, met_of = np.unique(s, axis=0, return_inverse=True)
     pattern, seen_of = np.unique(s > 0, axis=0, return_inverse=True)
-    pattern = pattern if seen is not None else pattern[:0]
-    m, k = len(rows), len(pattern)  # variables: y (n), met z (m), sampled q (k)
+    m, k = len(rows), 0 if seen is None else len(pattern)  # y (n), met z (m), sampled q (k)
     met_w = np.bincount(met_of.ravel(), w, m)
     constraints = [
-        LinearConstraint(np.hstack([rows, -np.eye(m), zeros((m, k))]), lb=0),
+        LinearConstraint(np.hstack([rows, -np.eye(m), np.zeros((m, k))]), lb=0),
         LinearConstraint(
-            np.concatenate([zeros(n), met_w, zeros(k)])[None, :], lb=fraction * w.sum()
+            np.concatenate([np.zeros(n), met_w, np.zeros(k)])[None, :], lb=fraction * w.sum()
         ),
     ]
     if seen is not None:
         seen_w = np.bincount(seen_of.ravel(), seen, k)
         constraints += [
-            LinearConstraint(np.hstack([pattern.astype(float), zeros((k, m)), -np.eye(k)]), lb=0),
             LinearConstraint(
-                np.concatenate([zeros(n + m), seen_w])[None, :], lb=SEEN_SHARE * seen.sum() - 1e-9
+                np.hstack([pattern.astype(float), np.zeros((k, m)), -np.eye(k)]), lb=0
+            ),
+            LinearConstraint(
+                np.concatenate([np.zeros(n + m), seen_w])[None, :],
+                lb=SEEN_SHARE * seen.sum() - 1e-9,
             ),
         ]
     res = milp(
-        np.concatenate([np.ones(n), zeros(m + k)]),
+        np.concatenate([np.ones(n), np.zeros(m + k)]),
         constraints=constraints,
         integrality=np.ones(n + m + k),
         bounds=Bounds(0, 1),

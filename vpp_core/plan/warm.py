@@ -6,8 +6,8 @@ while the rasteriser compiled. `warm` traces a tetrahedron with one small view t
 kernel a plan's trace uses (the backend's own, Embree packets for dense views, arbitrary rays for
 candidate checks), groups its faces into patches (the default rows' two kernels) and has the
 final cover's local search compiled (vpp_core.cover.rowweight): from the cache that is a
-fraction of a second; otherwise it compiles them (35 s and 9 s on a 2-core Xeon), and when
-that takes longer than `NOTICE_S` it reports the stage `compiling` to the progress callback
+fraction of a second; otherwise it compiles them (20 s on a 2-core EPYC, docs/raytrace.md),
+and when that takes longer than `NOTICE_S` it reports the stage `compiling` to the progress callback
 (`compiling 0/1` as it starts, `1/1` once done); once per process and backend.
 A plan does not count this stage in its time limit (vpp_core.plan.pipeline.spent_s), so a
 fresh install's first plan is the plan a warm one makes, later by the compile.

@@ -186,26 +186,33 @@ def view_first_hits(
         plane = _inverse_depth_plane(a, b, c)
         if not math.isfinite(plane[0] + plane[1] + plane[2]):
             continue  # plane through the camera: seen edge-on
-        if front == 3:
+        parts = 1 if front == 3 else _clip(a, b, c, poly) - 2
+        for t in range(1, parts + 1):  # one call site of _fill: it is inlined once
+            if front < 3:  # the clipped polygon's fan, triangle t
+                xs = (
+                    poly[0, 0] / poly[0, 2],
+                    poly[t, 0] / poly[t, 2],
+                    poly[t + 1, 0] / poly[t + 1, 2],
+                )
+                ys = (
+                    poly[0, 1] / poly[0, 2],
+                    poly[t, 1] / poly[t, 2],
+                    poly[t + 1, 1] / poly[t + 1, 2],
+                )
+                us = (
+                    xs[0] * scale[0] + scale[2],
+                    xs[1] * scale[0] + scale[2],
+                    xs[2] * scale[0] + scale[2],
+                )
+                vs = (
+                    ys[0] * scale[1] + scale[3],
+                    ys[1] * scale[1] + scale[3],
+                    ys[2] * scale[1] + scale[3],
+                )
+                box = _bounds(us, vs, window)
+                if box[0] < 0:
+                    continue
             _fill(xs, ys, box, plane, labels[f], px, py, scale, window, inv_z, ids)
-            continue
-        n = _clip(a, b, c, poly)
-        for t in range(1, n - 1):
-            xs = (poly[0, 0] / poly[0, 2], poly[t, 0] / poly[t, 2], poly[t + 1, 0] / poly[t + 1, 2])
-            ys = (poly[0, 1] / poly[0, 2], poly[t, 1] / poly[t, 2], poly[t + 1, 1] / poly[t + 1, 2])
-            us = (
-                xs[0] * scale[0] + scale[2],
-                xs[1] * scale[0] + scale[2],
-                xs[2] * scale[0] + scale[2],
-            )
-            vs = (
-                ys[0] * scale[1] + scale[3],
-                ys[1] * scale[1] + scale[3],
-                ys[2] * scale[1] + scale[3],
-            )
-            box = _bounds(us, vs, window)
-            if box[0] >= 0:
-                _fill(xs, ys, box, plane, labels[f], px, py, scale, window, inv_z, ids)
     return ids, inv_z
 
 

@@ -29,6 +29,8 @@ from vpp_core.plan.document import (
     Target,
 )
 
+pytestmark = pytest.mark.alone  # counts of time-limited plans are compared
+
 MIN_COVERAGE = 0.999
 """The documented partial-cover setting (docs/cad-meshes.md)."""
 COMPARE_COVERAGE = 0.99

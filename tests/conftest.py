@@ -9,7 +9,7 @@ import sys
 import time
 import uuid
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager, nullcontext
 from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit, urlunsplit
@@ -156,11 +156,41 @@ def pytest_sessionfinish(session: pytest.Session) -> None:
             lock_path(run, name).unlink(missing_ok=True)
 
 
+def is_alone(item: pytest.Item | None) -> bool:
+    """Whether `item` is a test marked `alone`."""
+    return item is not None and item.get_closest_marker("alone") is not None
+
+
+_alone_run: list[ExitStack] = []
+"""The exclusive share this worker holds across consecutive `alone` tests (one ExitStack, or
+none): taken once for a file of them, not once per test (each taking waits for the test that
+runs beside it)."""
+
+
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None) -> Iterator[None]:
     """Each test's setup, call and teardown inside its CPU share (cpu_share)."""
-    with cpu_share(item.get_closest_marker("alone") is not None):
+    alone = is_alone(item)
+    if alone and not _alone_run:
+        _alone_run.append(ExitStack())
+        _alone_run[0].enter_context(cpu_share(True))
+    with nullcontext() if alone else cpu_share(False):
         yield
+    if alone and not is_alone(nextitem):
+        _alone_run.pop().close()
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_sessionstart(session: pytest.Session) -> None:
+    """Under xdist the controller fills numba's cache before the workers start, so that they
+    (and the CLI and RQ processes they start) load the kernels instead of each compiling them
+    at once on a fresh install. A failure is left to the tests: each then compiles its own."""
+    config = session.config
+    if hasattr(config, "workerinput") or not config.getoption("numprocesses", None):
+        return
+    import subprocess
+
+    subprocess.run([sys.executable, "-m", "vpp_core.plan.warm"], cwd=ROOT, timeout=600)
 
 
 # ---------------------------------------------------------------- the service's real parts

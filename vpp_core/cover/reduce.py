@@ -190,10 +190,9 @@ def undominated_columns(A: sp.csr_array, costs: np.ndarray) -> np.ndarray:
     touched = sp.csc_array((ones, csc.indices, csc.indptr), shape=csc.shape)
     full = sp.csc_array((ones * (csc.data >= 1.0 - TOL), csc.indices, csc.indptr), csc.shape)
     size, full_size = np.diff(csc.indptr), np.asarray(full.sum(axis=0)).ravel()
-    within = sp.csr_array(touched.T @ full)  # [j, k]: rows of j on which k is full
-    j = np.repeat(np.arange(n), np.diff(within.indptr))
-    inside = within.data == size[j]  # k full on all of j's rows; the rest on these pairs only
-    j, k = j[inside], within.indices[inside]
+    within = sp.coo_array(touched.T @ full)  # [j, k]: rows of j on which k is full
+    inside = within.data == size[within.row]  # k full on all of j's rows; the rest on these only
+    j, k = within.row[inside], within.col[inside]
     dominated = (j != k) & (costs[k] <= costs[j])
     mirror = (size[k] == size[j]) & (full_size[j] == size[j]) & (costs[k] == costs[j])
     dominated &= ~(mirror & (k > j))

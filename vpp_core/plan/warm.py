@@ -7,8 +7,8 @@ kernel a plan's trace uses (the backend's own, Embree packets for dense views, a
 candidate checks), groups its faces into patches (the default rows' two kernels) and has the
 final cover's local search compiled (vpp_core.cover.rowweight): from the cache that is a
 fraction of a second; otherwise it compiles them (20 s on a 2-core EPYC, docs/raytrace.md),
-and when that takes longer than `NOTICE_S` it reports the stage `compiling` to the progress callback
-(`compiling 0/1` as it starts, `1/1` once done); once per process and backend.
+and when that takes longer than `NOTICE_S` it reports the stage `compiling` to the progress
+callback (`compiling 0/1` as it starts, `1/1` once done); once per process and backend.
 A plan does not count this stage in its time limit (vpp_core.plan.pipeline.spent_s), so a
 fresh install's first plan is the plan a warm one makes, later by the compile.
 `python -m vpp_core.plan.warm` fills the cache (the Docker image runs it at build time;

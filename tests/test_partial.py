@@ -220,11 +220,12 @@ def test_count_rows_hold_for_every_cover_and_count_the_fewest_partial_entries(se
     and k is the size of the smallest subset of the row's fractional entries covering it."""
     from itertools import combinations
 
-    from vpp_core.cover.problem import count_rows, fewest_partial
+    from vpp_core.cover.problem import count_rows, fewest_partial, fractional_rows
 
     rng = np.random.default_rng(seed)
     A = sp.csr_array(random_model(rng, 12, 7, binary=False) * rng.choice([0.35, 1.0], (12, 7)))
-    rows, B = count_rows(A)
+    rows = fractional_rows(A)
+    B = count_rows(A, rows)
     subsets = np.array([np.isin(range(7), s) for r in range(8) for s in combinations(range(7), r)])
     covers = subsets @ A.T.toarray() >= 1 - 1e-9  # (subsets, M)
     assert np.all((subsets @ B.T.toarray() >= 1 - 1e-9)[covers[:, rows]])

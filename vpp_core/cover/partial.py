@@ -72,6 +72,7 @@ from vpp_core.cover.problem import (
     as_csr,
     count_rows,
     coverage,
+    fractional_rows,
     integral_costs,
 )
 from vpp_core.cover.reduce import row_groups, undominated_columns
@@ -350,9 +351,9 @@ def _model(g: _Merged, c: np.ndarray, required: float, counts: bool) -> highspy.
     `counts` also B x - z >= 0 on the rows with a fractional entry (`problem.count_rows`)."""
     m, n = g.A.shape
     total = float(g.w.sum())
-    fractional, B = count_rows(g.A)
+    fractional = fractional_rows(g.A)
     counted = fractional if counts else fractional[:0]
-    B = B if counts else sp.csr_array((0, n))
+    B = count_rows(g.A, counted) if counts else sp.csr_array((0, n))
     x_part = sp.vstack([g.A, sp.csr_array((1, n)), B])
     eye = sp.eye_array(m, format="csr")
     z_part = sp.vstack([-eye, sp.csr_array(g.w[None, :] / total), -eye[counted]])

@@ -113,20 +113,26 @@ def fewest_partial(A: sp.csr_array, tol: float = COVER_TOL) -> np.ndarray:
     return fewest
 
 
-def count_rows(A: sp.csr_array, tol: float = COVER_TOL) -> tuple[np.ndarray, sp.csr_array]:
-    """Valid rows that strengthen A's LP relaxation: (rows (K,), B (K, N)) such that every y
-    binary covering row i of A (A_i y >= 1 - tol) has B y >= 1 on its row, for the K rows of
-    A with a fractional entry. A row covered without a whole entry (>= 1 - tol) needs at least
-    k of its fractional ones (`fewest_partial`), so B holds 1 for a whole entry and 1/k for a
-    fractional one (0 where no number of them reaches 1 - tol). Where no single view covers
-    a patch, A's own row lets two views at half weight cover it in the LP; B's row asks for
-    two whole views: a cube's 0.99 cover gets LP bound 3.7 instead of 2.3 (4 views)."""
+def fractional_rows(A: sp.csr_array, tol: float = COVER_TOL) -> np.ndarray:
+    """(K,) int64 rows of A (M, N) holding an entry below 1 - tol (a share of a column)."""
+    row_of = np.repeat(np.arange(A.shape[0]), np.diff(A.indptr))
+    return np.flatnonzero(np.bincount(row_of[A.data < 1.0 - tol], minlength=A.shape[0]))
+
+
+def count_rows(A: sp.csr_array, rows: np.ndarray, tol: float = COVER_TOL) -> sp.csr_array:
+    """Valid rows that strengthen A's LP relaxation: B (K, N) for the rows (K,) of A (M, N),
+    such that every y binary covering row i of A (A_i y >= 1 - tol) has B y >= 1 on its row.
+    A row covered without a whole entry (>= 1 - tol) needs at least k of its fractional ones
+    (`fewest_partial`), so B holds 1 for a whole entry and 1/k for a fractional one (0 where
+    no number of them reaches 1 - tol); on rows without a fractional entry B is A. Where no
+    single view covers a patch, A's own row lets two views at half weight cover it in the LP;
+    B's row asks for two whole views: a cube's 0.99 cover gets LP bound 3.7 instead of 2.3
+    (4 views)."""
     k = fewest_partial(A, tol)
     whole = A.data >= 1.0 - tol
     row_of = np.repeat(np.arange(A.shape[0]), np.diff(A.indptr))
     share = np.divide(1.0, k, out=np.zeros(k.size), where=k > 0)
     B = sp.csr_array((np.where(whole, 1.0, share[row_of]), A.indices, A.indptr), shape=A.shape)
-    rows = np.flatnonzero(np.bincount(row_of[~whole], minlength=A.shape[0]))
     B = sp.csr_array(B[rows])
     B.eliminate_zeros()
-    return rows.astype(np.int64), B
+    return B

@@ -9,10 +9,9 @@ import sys
 import time
 import uuid
 from collections.abc import Iterator
-from contextlib import ExitStack, contextmanager, nullcontext
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
-from urllib.parse import urlsplit, urlunsplit
 
 import numpy as np
 import pytest
@@ -103,119 +102,11 @@ def tmp_cwd(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
     return tmp_path
 
 
-# ---------------------------------------------------------------- tests that time themselves
-
-ALONE_LOCKS = ("turnstile", "cpu")
-"""Lock files of a test run shared by its xdist workers (pytest_runtest_protocol below)."""
-
-
-@contextmanager
-def cpu_share(alone: bool) -> Iterator[None]:
-    """Under xdist, hold the run's CPU lock while a test runs: shared for most tests, exclusive
-    for those marked `alone` (they bound wall time, or assert what a time-limited solve
-    reaches), so that they run as on an idle machine while the others run side by side. The
-    turnstile keeps a waiting `alone` test from being starved: new shared holders queue
-    behind it. Without xdist, nothing."""
-    run = os.environ.get("PYTEST_XDIST_TESTRUNUID")
-    if run is None:
-        yield
-        return
-    import fcntl
-
-    turnstile, cpu = (open(lock_path(run, name), "a") for name in ALONE_LOCKS)
-    try:
-        fcntl.flock(turnstile, fcntl.LOCK_EX)
-        fcntl.flock(cpu, fcntl.LOCK_EX if alone else fcntl.LOCK_SH)
-        if not alone:
-            fcntl.flock(turnstile, fcntl.LOCK_UN)
-        yield
-    finally:
-        turnstile.close()  # closing releases its locks
-        cpu.close()
-
-
-def lock_path(run: str, name: str) -> Path:
-    """Lock file `name` of test run `run` (its xdist testrunuid) in the temporary folder."""
-    import tempfile
-
-    return Path(tempfile.gettempdir()) / f"vpp-tests-{run}.{name}"
-
-
-def pytest_configure(config: pytest.Config) -> None:
-    """The xdist controller names the run (its workers' PYTEST_XDIST_TESTRUNUID), so that it
-    can remove the run's lock files at its end."""
-    if not hasattr(config, "workerinput") and config.getoption("testrunuid", "") is None:
-        config.option.testrunuid = uuid.uuid4().hex
-
-
-def pytest_sessionfinish(session: pytest.Session) -> None:
-    """The controller removes the run's lock files once every worker is done."""
-    run = session.config.getoption("testrunuid", None)
-    if run and not hasattr(session.config, "workerinput"):
-        for name in ALONE_LOCKS:
-            lock_path(run, name).unlink(missing_ok=True)
-
-
-def is_alone(item: pytest.Item | None) -> bool:
-    """Whether `item` is a test marked `alone`."""
-    return item is not None and item.get_closest_marker("alone") is not None
-
-
-_alone_run: list[ExitStack] = []
-"""The exclusive share this worker holds across consecutive `alone` tests (one ExitStack, or
-none): taken once for a file of them, not once per test (each taking waits for the test that
-runs beside it)."""
-
-
-@pytest.hookimpl(hookwrapper=True)
-def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None) -> Iterator[None]:
-    """Each test's setup, call and teardown inside its CPU share (cpu_share)."""
-    alone = is_alone(item)
-    if alone and not _alone_run:
-        _alone_run.append(ExitStack())
-        _alone_run[0].enter_context(cpu_share(True))
-    with nullcontext() if alone else cpu_share(False):
-        yield
-    if alone and not is_alone(nextitem):
-        _alone_run.pop().close()
-
-
-@pytest.hookimpl(tryfirst=True)
-def pytest_sessionstart(session: pytest.Session) -> None:
-    """Under xdist the controller fills numba's cache before the workers start, so that they
-    (and the CLI and RQ processes they start) load the kernels instead of each compiling them
-    at once on a fresh install. A failure is left to the tests: each then compiles its own."""
-    config = session.config
-    if hasattr(config, "workerinput") or not config.getoption("numprocesses", None):
-        return
-    import subprocess
-
-    subprocess.run([sys.executable, "-m", "vpp_core.plan.warm"], cwd=ROOT, timeout=600)
-
-
 # ---------------------------------------------------------------- the service's real parts
 
-WORKER = int(os.environ.get("PYTEST_XDIST_WORKER", "gw0").removeprefix("gw") or 0)
-"""This process's index among pytest-xdist's workers (0 without xdist)."""
-MAX_WORKERS = 2
-"""Each worker flushes a Redis db of its own, counted down from the given one (15 and 14: the
-benches use 8-13)."""
-
-
-def worker_redis_url(url: str, worker: int = WORKER) -> str:
-    """`url` with its db number lowered by `worker`, so that xdist's workers never flush each
-    other's db (15, 14, ... for the default); a clear error beyond MAX_WORKERS."""
-    parts = urlsplit(url)
-    db = int(parts.path.strip("/") or 0) - worker
-    if worker >= MAX_WORKERS or db < 0:
-        raise pytest.UsageError(f"the tests use up to {MAX_WORKERS} Redis dbs below {url}")
-    return urlunsplit(parts._replace(path=f"/{db}"))
-
-
-REDIS_TEST_URL = worker_redis_url(os.environ.get("VPP_TEST_REDIS_URL", "redis://127.0.0.1:6379/15"))
-"""The machine's Redis, db 15 (or VPP_TEST_REDIS_URL), one lower per xdist worker: flushed
-before and after each service test, nothing else; two test runs at once each need a db of
-their own."""
+REDIS_TEST_URL = os.environ.get("VPP_TEST_REDIS_URL", "redis://127.0.0.1:6379/15")
+"""The machine's Redis, db 15 (or VPP_TEST_REDIS_URL): flushed before and after each service
+test, nothing else; two test runs at once each need a db of their own."""
 
 
 @pytest.fixture(scope="session")

@@ -18,8 +18,6 @@ from vpp_core.plan.adaptive import target_rows
 from vpp_core.plan.document import CandidateGenerator, PlanRequest, SolverSettings, Target
 from vpp_core.plan.pipeline import cover_patches, plan
 
-pytestmark = pytest.mark.alone  # the recessed-rows plans compare counts of time-limited covers
-
 OPEN_MIN = 4
 """The `target.open_min` docs/quality.md measures."""
 

@@ -14,8 +14,6 @@ from vpp_core.cover.problem import is_cover
 from vpp_core.cover.setcover import solve_cover
 from vpp_core.samples import window_cover
 
-pytestmark = pytest.mark.alone  # the search's time limits are asserted in wall seconds
-
 
 def random_instance(
     seed: int, real: bool, m: int = 14, n: int = 11

@@ -340,7 +340,6 @@ def test_a_worker_ends_when_the_process_that_started_it_is_killed(env) -> None:
             os.kill(pid, signal.SIGKILL)
 
 
-@pytest.mark.alone  # the stop is asserted within 2 sweeps + 5 s
 def test_a_stop_signal_that_a_library_swallows_still_stops_the_worker(env) -> None:
     """RQ stops an idle worker by raising StopRequested from its SIGTERM handler; a signal that
     lands inside one of redis-py's `except Exception: pass` lost it, and the worker (whose

@@ -27,8 +27,6 @@ from vpp_core.mesh.part import load_mesh
 from vpp_core.samples import sample_stl
 from worker.settings import Settings
 
-pytestmark = pytest.mark.alone  # bad input is refused within FAST seconds
-
 PROBLEM = "application/problem+json"
 JSON = {"content-type": "application/json"}
 FAST = 2.0

@@ -25,8 +25,6 @@ from tests.test_hostile import FAST, JSON, refused, timed, upload, viewpoints_bo
 from vpp_core.samples import sample_stl
 from worker.settings import Settings
 
-pytestmark = pytest.mark.alone  # /livez's latency while a body is parsed is asserted
-
 ZERO = "0" * 64
 
 

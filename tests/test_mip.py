@@ -22,8 +22,6 @@ from vpp_core.cover import mip
 from vpp_core.cover.lpbound import highs_model
 from vpp_core.samples import window_cover
 
-pytestmark = pytest.mark.alone  # the MIP's time limit is asserted in wall seconds
-
 ROOT = Path(__file__).resolve().parents[1]
 
 

@@ -31,8 +31,6 @@ from vpp_core.cover.reduce import row_groups
 from vpp_core.cover.setcover import solve_cover
 from vpp_core.errors import SolverError
 
-pytestmark = pytest.mark.alone  # partial covers' time limits are asserted in wall seconds
-
 
 def random_model(rng: np.random.Generator, m: int, n: int, binary: bool) -> sp.csr_array:
     """(m, n) coverable model; 0/1 or partial coefficients in {0.3, 0.5, 0.7, 1}."""

@@ -19,8 +19,6 @@ from vpp_core.plan.document import CandidateGenerator, PlanRequest, SolverSettin
 from vpp_core.samples import sample_stl
 from vpp_core.trace.raytrace import trace_counts
 
-pytestmark = pytest.mark.alone  # adaptive rounds fit in half of the plan's time limit
-
 PAPER = Sensor()
 SMALL = Sensor(width_px=320, height_px=200, fov_x_deg=38.7, fov_y_deg=24.75)
 

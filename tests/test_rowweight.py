@@ -17,8 +17,6 @@ from vpp_core.cover.partial import greedy_partial
 from vpp_core.cover.problem import BUILD_TOL, is_cover
 from vpp_core.samples import window_cover
 
-pytestmark = pytest.mark.alone  # the search's time limits are asserted in wall seconds
-
 ORLIB = Path("../shared/data/orlib-scp")
 
 

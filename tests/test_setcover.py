@@ -28,8 +28,6 @@ from vpp_core.cover.setcover import (
 )
 from vpp_core.errors import SolverError
 
-pytestmark = pytest.mark.alone  # time limits and OR-Library counts within them are asserted
-
 ORLIB = Path(__file__).resolve().parents[1].parent / "shared/data/orlib-scp"
 ORLIB_EXACT = [f"scp4{i}" for i in range(1, 11)] + [f"scp5{i}" for i in range(1, 11)]
 

@@ -63,7 +63,6 @@ def two_tessellations() -> tuple[Part, Part]:
 
 
 @pytest.mark.slow
-@pytest.mark.alone  # compares counts of time-limited covers
 @pytest.mark.parametrize("formulation", ["visibility", "density"])
 def test_default_counts_agree_across_tessellations(two_tessellations, formulation):
     """Issue 33 item 4: nothing but the formulation (and a shorter limit than the default
@@ -114,7 +113,6 @@ def test_tilted_candidates_keep_plate_holes_counts_within_one_across_tessellatio
 
 
 @pytest.mark.slow
-@pytest.mark.alone  # compares counts of time-limited covers
 def test_tilted_candidates_make_the_count_independent_of_the_seed():
     """featuretype.STL: along the normals seeds 0 and 1 give 25 and 15 views at F = 0.999
     (docs/cad-meshes.md); tilted by up to 30°, the same seeds agree within 1."""
@@ -147,7 +145,6 @@ def seen_share(doc: PlanDocument, other: PlanDocument, part: Part) -> float:
 
 
 @pytest.mark.slow
-@pytest.mark.alone  # compares counts of time-limited covers
 def test_area_elements_make_a_cad_plan_see_what_it_claims(two_tessellations):
     """On 1 mm² elements (--max-face-area 1), the CAD Hirth joint's plan, traced on the remesh,
     sees ≥ 99 % of what the remesh's candidates reach, and the counts agree within 1

@@ -17,8 +17,6 @@ from vpp_core.plan import pipeline
 from vpp_core.plan import warm as warm_module
 from vpp_core.plan.document import CandidateGenerator, PlanRequest
 
-pytestmark = pytest.mark.alone  # reading the numba cache is asserted to take less than NOTICE_S
-
 ROOT = Path(__file__).resolve().parent.parent
 WARM = """
 import json, sys

@@ -149,24 +149,21 @@ def state(conn: Redis, store: Store, plan: str) -> JobState:
 
 
 def cancel(conn: Redis, store: Store, plan: str) -> JobState:
-    """Cancel the plan job and its queued or running chunks; the state after it. The plan
-    goes first (a chunk canceled under its live horse fails the plan instead), and its chunks
-    are looked at again once it has stopped: the worker whose horse the stop killed takes the
-    next job off the queue at once, which was a chunk the first sweep had not reached yet (a
-    CI replica, session 56)."""
+    """Cancel the plan job and its queued or running chunks; the state after it. The chunks
+    are stopped once the plan has: a chunk canceled under the plan's live horse fails the plan
+    instead ('ray-tracing chunk 4 failed: JobStatus.CANCELED'), and the worker whose horse the
+    plan's stop killed takes the next job off the queue at once (with the chunks swept while
+    the horse died, a chunk the sweep had not reached yet; a CI replica, session 56)."""
     job = _fetch(conn, plan)
     if job is None or _status(job) not in ("queued", "running"):
         return state(conn, store, plan)
     _stop(conn, job)
-    records = job.meta.get("chunks", [])
-    chunks = [c for r in records if r.get("job") and (c := _fetch(conn, r["job"])) is not None]
-    for chunk in chunks:
-        _stop(conn, chunk)
     deadline = time.monotonic() + CANCEL_WAIT_S
     while _status(job) == "running" and time.monotonic() < deadline:
         time.sleep(0.02)
-    for chunk in chunks:
-        if _status(chunk) in ("queued", "running"):
+    for rec in job.meta.get("chunks", []):
+        chunk = _fetch(conn, rec["job"]) if rec.get("job") else None
+        if chunk is not None:
             _stop(conn, chunk)
     return state(conn, store, plan)
 

@@ -161,7 +161,7 @@ def cancel(conn: Redis, store: Store, plan: str) -> JobState:
     deadline = time.monotonic() + CANCEL_WAIT_S
     while _status(job) == "running" and time.monotonic() < deadline:
         time.sleep(0.02)
-    for rec in job.meta.get("chunks", []):
+    for rec in job.get_meta().get("chunks", []):  # read again: all the stopped plan enqueued
         chunk = _fetch(conn, rec["job"]) if rec.get("job") else None
         if chunk is not None:
             _stop(conn, chunk)

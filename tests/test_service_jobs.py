@@ -162,6 +162,37 @@ def test_cancel_stops_a_running_job_and_a_resubmission_resumes(
     assert any(c["worker"] == "store" for c in done["chunks"])  # traced before the cancel
 
 
+def test_a_plans_chunks_are_named_in_its_records_before_they_are_queued(svc_env, redis_db):
+    # A cancel stops the chunks the plan's records name. When the records were published after
+    # the chunks were queued, a plan stopped in between left queued chunks no sweep found.
+    from rq import Queue
+    from rq.job import Job
+
+    from worker import jobs
+    from worker.settings import Settings
+    from worker.store import open_store
+
+    settings = Settings()
+    queue = Queue(svc_env["VPP_QUEUE"], connection=redis_db)
+    plan_job = queue.enqueue(print, job_id="a-plan")
+    ctx = jobs.Context(
+        settings, open_store(settings.store_url), plan_job, queue, jobs._Meta(plan_job)
+    )
+    named_when_queued = []
+    enqueue_many = queue.enqueue_many
+
+    def enqueue_and_look(calls, **kw):  # what a cancel would read at this moment
+        records = Job.fetch("a-plan", connection=redis_db).get_meta().get("chunks", [])
+        named_when_queued.append({c.job_id for c in calls} <= {r.get("job") for r in records})
+        return enqueue_many(calls, **kw)
+
+    queue.enqueue_many = enqueue_and_look
+    chunks = jobs._Chunks(ctx, "mesh", "trace", n_views=25, size=10, backend="raster")
+    assert named_when_queued == [True]
+    assert set(queue.job_ids) == {"a-plan"} | {r["job"] for r in chunks.records}
+    assert len(chunks.records) == 3
+
+
 def test_a_failed_chunk_fails_the_plan_with_its_reason(api, start_workers, monkeypatch) -> None:
     monkeypatch.setenv("VPP_CHUNK_TIMEOUT_S", "1")
     monkeypatch.setenv("VPP_CHUNK_VIEWS", "200")

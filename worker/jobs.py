@@ -392,7 +392,9 @@ class _Chunks:
         return {r["index"]: r["job"] for r in old if r["job"] in alive}
 
     def _enqueue(self) -> None:
-        """Enqueue a job for every chunk not in the store yet (or adopt the previous attempt's)."""
+        """Enqueue a job for every chunk not in the store yet (or adopt the previous attempt's),
+        once the plan's records name them: a plan stopped between the two otherwise left
+        queued chunks that no cancel's sweep (worker.queue.cancel) finds."""
         ctx, s = self.ctx, self.ctx.settings
         stored = [
             ctx.store.exists(art.chunk_key(self.trace_id, self.size, i)) for i in range(self.n)
@@ -420,9 +422,9 @@ class _Chunks:
                     retry=Retry(max=s.job_retries) if s.job_retries else None,
                 )
             )
+        self._publish(force=True)  # named first: a cancel's sweep finds every chunk queued
         if calls:
             ctx.queue.enqueue_many(calls)
-        self._publish(force=True)
 
     def take_back(self) -> int | None:
         """Index of a chunk taken back from the queue to trace here, or None if none is left."""

@@ -18,7 +18,7 @@ from vpp_core.cover.lpbound import Relaxation, relaxation_bound, row_lagrangian
 from vpp_core.cover.partial import (
     LP_HEAD_START_S,
     _merged,
-    _model,
+    _rows,
     greedy_partial,
     grown,
     prune_seen,
@@ -191,7 +191,7 @@ def partial_lp(A: sp.csr_array, w: np.ndarray, f: float):
     """The merged partial model of A (M, N), weights w, fraction f as a HighsLp, unit costs,
     with count rows (the relaxation's model)."""
     g = _merged(A, w, np.ones(A.shape[1]))
-    return _model(g, np.ones(g.A.shape[1]), f * w.sum(), True)
+    return _rows(g, np.ones(g.A.shape[1]), f * w.sum(), True)
 
 
 @pytest.mark.parametrize("seed", range(6))
@@ -202,15 +202,13 @@ def test_relaxation_bound_is_the_lp_value_and_any_multipliers_bound_it(seed):
     A = random_model(rng, 30, 8, binary=seed % 2 == 0)
     w = rng.random(30)
     lp = partial_lp(A, w, 0.8)
-    a = lp.a_matrix_
-    M = sp.csc_array((a.value_, a.index_, a.start_), shape=(lp.num_row_, lp.num_col_))
     ref = linprog(
-        lp.col_cost_, A_ub=-M, b_ub=-np.asarray(lp.row_lower_),
-        bounds=list(zip(lp.col_lower_, lp.col_upper_, strict=True)), method="highs-ipm",
+        lp.cost, A_ub=-lp.M, b_ub=-lp.row_lower,
+        bounds=list(zip(lp.col_lower, lp.col_upper, strict=True)), method="highs-ipm",
     )  # fmt: skip
-    assert relaxation_bound(lp, 10.0) == pytest.approx(ref.fun, abs=1e-7)
+    assert relaxation_bound(lp, 10.0) == pytest.approx(ref.fun, abs=1e-7)  # HiGHS's model: lp's
     for _ in range(20):  # weak duality: every y >= 0 bounds the LP from below
-        assert row_lagrangian(lp, rng.random(lp.num_row_) * 3) <= ref.fun + 1e-9
+        assert row_lagrangian(lp, rng.random(lp.M.shape[0]) * 3) <= ref.fun + 1e-9
     assert relaxation_bound(lp, 10.0) <= brute_partial(A.toarray(), w, 0.8, np.ones(8)) + 1e-9
 
 

@@ -155,31 +155,56 @@ RELAXATION_OPTIONS: dict[str, HighsOption] = {"solver": "simplex"}
 where the interior point took 27 / 27 s and had not finished after 60 s."""
 
 
-def row_lagrangian(lp: highspy.HighsLp, y: np.ndarray) -> float:
-    """Lagrangian bound of min c·x, rows M x >= row_lower_ (no upper), col_lower_ <= x <=
-    col_upper_ (finite), at multipliers y (rows,) >= 0: Σ y·row_lower + Σ_k min(d_k lo_k,
-    d_k up_k) with d = c - Mᵀy. It bounds every feasible x's cost, whatever y is."""
-    a = lp.a_matrix_
-    M = sp.csc_array((a.value_, a.index_, a.start_), shape=(lp.num_row_, lp.num_col_))
-    d = np.asarray(lp.col_cost_) - np.asarray(M.T @ y)
-    lo, up = np.asarray(lp.col_lower_), np.asarray(lp.col_upper_)
-    return float(y @ np.asarray(lp.row_lower_) + np.minimum(d * lo, d * up).sum())
+@dataclass(frozen=True)
+class RowModel:
+    """min cost·x, M x >= row_lower (no upper), col_lower <= x <= col_upper (finite), columns
+    marked in `integer` integral: the arrays of a HiGHS model, kept beside it. Reading them
+    back out of a HighsLp makes a Python object of every entry: on the fine coupling
+    stand-in's face-row model (237 k rows) the Lagrangian then took 18 s and GBs of memory,
+    and the plan ran 30 s past its time limit waiting for it."""
+
+    M: sp.csc_array  # (rows, cols)
+    cost: np.ndarray  # (cols,)
+    col_lower: np.ndarray  # (cols,)
+    col_upper: np.ndarray  # (cols,)
+    row_lower: np.ndarray  # (rows,)
+    integer: np.ndarray  # (cols,) bool
+
+    def highs(self, relaxed: bool = False) -> highspy.HighsLp:
+        """The HiGHS model; with `relaxed`, every column continuous."""
+        lp = highspy.HighsLp()
+        (lp.num_row_, lp.num_col_), M = self.M.shape, self.M
+        lp.col_cost_, lp.col_lower_, lp.col_upper_ = self.cost, self.col_lower, self.col_upper
+        lp.row_lower_, lp.row_upper_ = self.row_lower, np.full(M.shape[0], highspy.kHighsInf)
+        lp.a_matrix_.format_ = highspy.MatrixFormat.kColwise
+        lp.a_matrix_.start_ = M.indptr.astype(np.int32)
+        lp.a_matrix_.index_ = M.indices.astype(np.int32)
+        lp.a_matrix_.value_ = M.data
+        if not relaxed:
+            kinds = (highspy.HighsVarType.kContinuous, highspy.HighsVarType.kInteger)
+            lp.integrality_ = [kinds[k] for k in self.integer.tolist()]
+        return lp
+
+
+def row_lagrangian(model: RowModel, y: np.ndarray) -> float:
+    """Lagrangian bound of `model` at multipliers y (rows,) >= 0: Σ y·row_lower + Σ_k
+    min(d_k lo_k, d_k up_k) with d = cost - Mᵀy. It bounds every feasible x's cost, whatever
+    y is."""
+    d = model.cost - np.asarray(model.M.T @ y)
+    lo, up = model.col_lower, model.col_upper
+    return float(y @ model.row_lower + np.minimum(d * lo, d * up).sum())
 
 
 class Relaxation:
-    """The LP relaxation of a HiGHS model (integrality dropped), solved by HiGHS in a thread
-    (it releases the GIL) until its time limit or `cancel()`."""
+    """The LP relaxation of a model (integrality dropped), solved by HiGHS in a thread (it
+    releases the GIL) until its time limit or `cancel()`."""
 
-    def __init__(self, lp: highspy.HighsLp, time_limit: float, threads: int | None = None):
+    def __init__(self, model: RowModel, time_limit: float, threads: int | None = None):
         options = {"time_limit": max(float(time_limit), 0.01), **RELAXATION_OPTIONS}
         self._h = silent_highs(options, threads)
         self._h.HandleUserInterrupt = True  # cancelSolve() stops it
-        integrality, lp.integrality_ = lp.integrality_, []
-        try:
-            self._h.passModel(lp)
-        finally:
-            lp.integrality_ = integrality
-        self._lp, self._bound = lp, -np.inf
+        self._h.passModel(model.highs(relaxed=True))
+        self._lp, self._bound = model, -np.inf
         self._thread = threading.Thread(target=self._run, args=(threads,), daemon=True)
         self._thread.start()
 
@@ -203,6 +228,6 @@ class Relaxation:
         self._thread.join()
 
 
-def relaxation_bound(lp: highspy.HighsLp, time_limit: float, threads: int | None = None) -> float:
-    """`Relaxation(lp, time_limit, threads).bound()`: the LP relaxation's bound, solved here."""
-    return Relaxation(lp, time_limit, threads).bound()
+def relaxation_bound(model: RowModel, time_limit: float, threads: int | None = None) -> float:
+    """`Relaxation(model, time_limit, threads).bound()`: the LP relaxation's bound, solved here."""
+    return Relaxation(model, time_limit, threads).bound()

@@ -62,7 +62,7 @@ import scipy.sparse as sp
 
 from vpp_core.cover import rowweight
 from vpp_core.cover.greedy import lazy_picks
-from vpp_core.cover.lpbound import Relaxation
+from vpp_core.cover.lpbound import Relaxation, RowModel
 from vpp_core.cover.mip import GRACE_S, TIMED_OUT, MipAnswer, submit, warm
 from vpp_core.cover.problem import (
     BUILD_TOL,
@@ -266,7 +266,7 @@ def _milp(
     c = costs[g.cols]
     model = functools.partial(_model, g, c, required, False)
     integral = integral_costs(c)
-    relaxation = Relaxation(_model(g, c, required, True), deadline - time.perf_counter(), threads)
+    relaxation = Relaxation(_rows(g, c, required, True), deadline - time.perf_counter(), threads)
     try:
         lp = max(relaxation.bound(min(LP_HEAD_START_S, deadline - time.perf_counter())), 0.0)
         bound, closed = closes_gap(lp, c[start].sum(), integral)
@@ -347,7 +347,12 @@ def _status(model_status: highspy.HighsModelStatus, closed: bool) -> str:
 
 
 def _model(g: _Merged, c: np.ndarray, required: float, counts: bool) -> highspy.HighsLp:
-    """HiGHS model over columns (x (n), z (m)) and rows (A x - z >= 0 (m), w·z/W >= f), with
+    """`_rows`'s model as HiGHS takes it (what the MIP's process builds)."""
+    return _rows(g, c, required, counts).highs()
+
+
+def _rows(g: _Merged, c: np.ndarray, required: float, counts: bool) -> RowModel:
+    """The model over columns (x (n), z (m)) and rows (A x - z >= 0 (m), w·z/W >= f), with
     `counts` also B x - z >= 0 on the rows with a fractional entry (`problem.count_rows`)."""
     m, n = g.A.shape
     total = float(g.w.sum())
@@ -357,26 +362,17 @@ def _model(g: _Merged, c: np.ndarray, required: float, counts: bool) -> highspy.
     x_part = sp.vstack([g.A, sp.csr_array((1, n)), B])
     eye = sp.eye_array(m, format="csr")
     z_part = sp.vstack([-eye, sp.csr_array(g.w[None, :] / total), -eye[counted]])
-    M = sp.csc_array(sp.hstack([x_part, z_part]))
-    lp = highspy.HighsLp()
-    lp.num_col_, lp.num_row_ = n + m, M.shape[0]
-    lp.col_cost_ = np.concatenate([c, np.zeros(m)])
     forced = g.w > total - required  # cannot be left out
-    lp.col_lower_ = np.concatenate([np.zeros(n), forced.astype(float)])
-    lp.col_upper_ = np.ones(n + m)
-    lp.row_lower_ = np.concatenate([np.zeros(m), [required / total], np.zeros(counted.size)])
-    lp.row_upper_ = np.full(M.shape[0], highspy.kHighsInf)
-    lp.a_matrix_.format_ = highspy.MatrixFormat.kColwise
-    lp.a_matrix_.start_ = M.indptr.astype(np.int32)
-    lp.a_matrix_.index_ = M.indices.astype(np.int32)
-    lp.a_matrix_.value_ = M.data
-    binary_row = np.ones(m, dtype=bool)  # every coefficient is 1
-    binary_row[fractional] = False
-    kinds = [highspy.HighsVarType.kInteger] * n + [
-        highspy.HighsVarType.kContinuous if b else highspy.HighsVarType.kInteger for b in binary_row
-    ]
-    lp.integrality_ = kinds
-    return lp
+    integral_z = np.zeros(m, dtype=bool)  # z_i continuous where every coefficient is 1
+    integral_z[fractional] = True
+    return RowModel(
+        M=sp.csc_array(sp.hstack([x_part, z_part])),
+        cost=np.concatenate([c, np.zeros(m)]),
+        col_lower=np.concatenate([np.zeros(n), forced.astype(float)]),
+        col_upper=np.ones(n + m),
+        row_lower=np.concatenate([np.zeros(m), [required / total], np.zeros(counted.size)]),
+        integer=np.concatenate([np.ones(n, dtype=bool), integral_z]),
+    )
 
 
 def seen_columns(

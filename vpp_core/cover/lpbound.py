@@ -52,22 +52,42 @@ def lagrangian(A: sp.csr_array, costs: np.ndarray, u: np.ndarray) -> tuple[float
     return float(u.sum() + np.minimum(reduced, 0.0).sum()), reduced
 
 
+@dataclass(frozen=True)
+class RowModel:
+    """min cost·x, M x >= row_lower (no upper), col_lower <= x <= col_upper (finite), columns
+    marked in `integer` integral: the arrays of a HiGHS model, kept beside it. Reading them
+    back out of a HighsLp makes a Python object of every entry: on the fine coupling
+    stand-in's face-row model (237 k rows) the Lagrangian then took 18 s and GBs of memory,
+    and the plan ran 30 s past its time limit waiting for it."""
+
+    M: sp.csc_array  # (rows, cols)
+    cost: np.ndarray  # (cols,)
+    col_lower: np.ndarray  # (cols,)
+    col_upper: np.ndarray  # (cols,)
+    row_lower: np.ndarray  # (rows,)
+    integer: np.ndarray  # (cols,) bool
+
+    def highs(self, relaxed: bool = False) -> highspy.HighsLp:
+        """The HiGHS model; with `relaxed`, every column continuous."""
+        lp = highspy.HighsLp()
+        (lp.num_row_, lp.num_col_), M = self.M.shape, self.M
+        lp.col_cost_, lp.col_lower_, lp.col_upper_ = self.cost, self.col_lower, self.col_upper
+        lp.row_lower_, lp.row_upper_ = self.row_lower, np.full(M.shape[0], highspy.kHighsInf)
+        lp.a_matrix_.format_ = highspy.MatrixFormat.kColwise
+        lp.a_matrix_.start_ = M.indptr.astype(np.int32)
+        lp.a_matrix_.index_ = M.indices.astype(np.int32)
+        lp.a_matrix_.value_ = M.data
+        if not relaxed:
+            kinds = (highspy.HighsVarType.kContinuous, highspy.HighsVarType.kInteger)
+            lp.integrality_ = [kinds[k] for k in self.integer.tolist()]
+        return lp
+
+
 def highs_model(A: sp.csr_array, costs: np.ndarray, integer: bool = False) -> highspy.HighsLp:
     """HiGHS model min c·y, A y >= 1, 0 <= y <= 1 (y integer if asked) for A (M, N), costs (N,)."""
-    csc = sp.csc_array(A)
     m, n = A.shape
-    lp = highspy.HighsLp()
-    lp.num_col_, lp.num_row_ = n, m
-    lp.col_cost_ = costs
-    lp.col_lower_, lp.col_upper_ = np.zeros(n), np.ones(n)
-    lp.row_lower_, lp.row_upper_ = np.ones(m), np.full(m, highspy.kHighsInf)
-    lp.a_matrix_.format_ = highspy.MatrixFormat.kColwise
-    lp.a_matrix_.start_ = csc.indptr.astype(np.int32)
-    lp.a_matrix_.index_ = csc.indices.astype(np.int32)
-    lp.a_matrix_.value_ = csc.data
-    if integer:
-        lp.integrality_ = [highspy.HighsVarType.kInteger] * n
-    return lp
+    cover = RowModel(sp.csc_array(A), costs, np.zeros(n), np.ones(n), np.ones(m), np.ones(n, bool))
+    return cover.highs(relaxed=not integer)
 
 
 HighsOption = bool | int | float | str
@@ -155,37 +175,6 @@ RELAXATION_OPTIONS: dict[str, HighsOption] = {"solver": "simplex"}
 where the interior point took 27 / 27 s and had not finished after 60 s."""
 
 
-@dataclass(frozen=True)
-class RowModel:
-    """min cost·x, M x >= row_lower (no upper), col_lower <= x <= col_upper (finite), columns
-    marked in `integer` integral: the arrays of a HiGHS model, kept beside it. Reading them
-    back out of a HighsLp makes a Python object of every entry: on the fine coupling
-    stand-in's face-row model (237 k rows) the Lagrangian then took 18 s and GBs of memory,
-    and the plan ran 30 s past its time limit waiting for it."""
-
-    M: sp.csc_array  # (rows, cols)
-    cost: np.ndarray  # (cols,)
-    col_lower: np.ndarray  # (cols,)
-    col_upper: np.ndarray  # (cols,)
-    row_lower: np.ndarray  # (rows,)
-    integer: np.ndarray  # (cols,) bool
-
-    def highs(self, relaxed: bool = False) -> highspy.HighsLp:
-        """The HiGHS model; with `relaxed`, every column continuous."""
-        lp = highspy.HighsLp()
-        (lp.num_row_, lp.num_col_), M = self.M.shape, self.M
-        lp.col_cost_, lp.col_lower_, lp.col_upper_ = self.cost, self.col_lower, self.col_upper
-        lp.row_lower_, lp.row_upper_ = self.row_lower, np.full(M.shape[0], highspy.kHighsInf)
-        lp.a_matrix_.format_ = highspy.MatrixFormat.kColwise
-        lp.a_matrix_.start_ = M.indptr.astype(np.int32)
-        lp.a_matrix_.index_ = M.indices.astype(np.int32)
-        lp.a_matrix_.value_ = M.data
-        if not relaxed:
-            kinds = (highspy.HighsVarType.kContinuous, highspy.HighsVarType.kInteger)
-            lp.integrality_ = [kinds[k] for k in self.integer.tolist()]
-        return lp
-
-
 def row_lagrangian(model: RowModel, y: np.ndarray) -> float:
     """Lagrangian bound of `model` at multipliers y (rows,) >= 0: Σ y·row_lower + Σ_k
     min(d_k lo_k, d_k up_k) with d = cost - Mᵀy. It bounds every feasible x's cost, whatever
@@ -204,7 +193,7 @@ class Relaxation:
         self._h = silent_highs(options, threads)
         self._h.HandleUserInterrupt = True  # cancelSolve() stops it
         self._h.passModel(model.highs(relaxed=True))
-        self._lp, self._bound = model, -np.inf
+        self._model, self._bound = model, -np.inf
         self._thread = threading.Thread(target=self._run, args=(threads,), daemon=True)
         self._thread.start()
 
@@ -212,7 +201,7 @@ class Relaxation:
         run_highs(self._h, threads)
         solution = self._h.getSolution()
         if solution.dual_valid:
-            self._bound = row_lagrangian(self._lp, clipped_duals(solution))
+            self._bound = row_lagrangian(self._model, clipped_duals(solution))
 
     def bound(self, wait: float | None = None) -> float:
         """`row_lagrangian` at the clipped row duals, once solved within `wait` s (None: until

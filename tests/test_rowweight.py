@@ -58,7 +58,8 @@ def test_incremental_scores_equal_a_recount(real: bool, partial: bool) -> None:
     assert np.array_equal(model[-2], dense.max(axis=1))
     budget = 0.1 * area.sum() if partial else rowweight.EVERY_ROW
     S = rowweight._start(greedy_cover(A, costs), model, 0, budget)
-    f = np.vectorize(lambda c: 1.0 if c >= 1.0 - BUILD_TOL else c)
+    kappa = rowweight.PARTIAL_CREDIT  # what a row short of 1 counts per unit of coverage
+    f = np.vectorize(lambda c: 1.0 if c >= 1.0 - BUILD_TOL else kappa * c)
     for _ in range(5):
         rowweight._walk(37, 1.0 - 1e-9, -np.inf, 10**9, *model, *rowweight._fields(S))
         cov = dense @ S.x

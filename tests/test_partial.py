@@ -188,7 +188,7 @@ def partial_model(A: sp.csr_array, w: np.ndarray, f: float) -> tuple:
 
 
 def partial_lp(A: sp.csr_array, w: np.ndarray, f: float):
-    """The merged partial model of A (M, N), weights w, fraction f as a HighsLp, unit costs,
+    """The merged partial model of A (M, N), weights w, fraction f as a RowModel, unit costs,
     with count rows (the relaxation's model)."""
     g = _merged(A, w, np.ones(A.shape[1]))
     return _rows(g, np.ones(g.A.shape[1]), f * w.sum(), True)

@@ -101,6 +101,7 @@ def run_setting(
         "patch_sampled": rows.get("sampled_area"),
         "patch_met": rows.get("met_area"),
         "recessed": rows.get("recessed_area"),
+        "points": (doc.get("partial") or {}).get("points"),
         "rounds": [
             (r["candidates"], r["views"], r["added"] - r.get("removed", 0))
             for r in doc.get("adaptive", [])

@@ -791,6 +791,15 @@ def _partial_rows(doc: PlanDocument) -> list[tuple[str, str]]:
             f"faces ({p.left_out.area_mm2:.4g} mm²)",
         )
     ]
+    if p.points is not None:
+        q, more = p.points, len(p.points.added)
+        added = f"; {more} view{'s' if more != 1 else ''} added for it" if more else ""
+        out.append(
+            (
+                f"seen at {q.points} points",
+                f"{q.seen_fraction:.2%} (the candidates {q.reach_fraction:.2%}){added}",
+            )
+        )
     rows = doc.cover_rows
     if rows is not None and rows.recessed_area:
         r = rows.recessed

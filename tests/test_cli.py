@@ -184,6 +184,11 @@ def test_min_coverage_plans_a_partial_cover_and_reports_it(tmp_path):
     doc = json.loads(out.read_text())
     assert doc["target"]["min_coverage"] == 0.9
     part = doc["partial"]
+    points = part["points"]  # the plan judged at points too, and said so
+    assert f"seen at {points['points']} points" in run.stdout
+    assert f"{points['seen_fraction']:.2%} (the candidates {points['reach_fraction']:.2%})" in (
+        run.stdout
+    )
     assert part["covered_fraction"] >= 0.9
     assert part["covered_area_mm2"] + part["left_out"]["area_mm2"] == pytest.approx(
         part["coverable_area_mm2"]

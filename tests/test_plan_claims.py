@@ -323,6 +323,50 @@ def partial_optimum(
     return int(round(res.fun))
 
 
+def points_seen(part: Part, wanted: np.ndarray, c2w: list, count: int) -> np.ndarray:
+    """(N, count) bool: which of `count` random points on the faces `wanted` (uniform by area,
+    seed 11) each camera at 4 × 4 c2w sees: in its SMALL image and depth of field, within the
+    incidence limit, and with nothing nearer along trimesh's ray from the camera."""
+    rng = np.random.default_rng(11)
+    w = np.where(wanted, part.areas, 0.0)
+    faces = rng.choice(part.n_faces, size=count, p=w / w.sum())
+    r1, r2 = np.sqrt(rng.random(count))[:, None], rng.random(count)[:, None]
+    a, b, c = (part.vertices[part.faces[faces, i]] for i in range(3))
+    pts = (1 - r1) * a + r1 * (1 - r2) * b + r1 * r2 * c
+    mesh = trimesh.Trimesh(part.vertices, part.faces, process=False)
+    out = np.zeros((len(c2w), count), dtype=bool)
+    for j, m in enumerate(c2w):
+        d = pts - m[:3, 3]
+        cam, dist = d @ m[:3, :3], np.linalg.norm(d, axis=1)
+        u = SMALL.fx * cam[:, 0] / cam[:, 2] + SMALL.width_px / 2
+        v = SMALL.fy * cam[:, 1] / cam[:, 2] + SMALL.height_px / 2
+        cos = np.abs((part.normals[faces] * d).sum(axis=1)) / dist
+        ok = (cam[:, 2] >= SMALL.near_mm) & (cam[:, 2] <= SMALL.far_mm)
+        ok &= (u >= 0) & (u < SMALL.width_px) & (v >= 0) & (v < SMALL.height_px)
+        ok &= cos >= np.cos(np.radians(SMALL.max_incidence_deg))
+        idx = np.flatnonzero(ok)
+        loc, ray, _ = mesh.ray.intersects_location(
+            np.tile(m[:3, 3], (len(idx), 1)), d[idx] / dist[idx, None], multiple_hits=False
+        )
+        first = np.full(len(idx), np.inf)
+        first[ray] = np.linalg.norm(loc - m[:3, 3], axis=1)
+        out[j, idx] = first >= dist[idx] - 1e-3 * (1 + dist[idx] * 1e-3)
+    return out
+
+
+def at_points(part: Part, doc: PlanDocument, wanted: np.ndarray, c2w: list) -> None:
+    """The document's `partial.points` against points_seen's own 20 000 points: the shares
+    the plan and its candidates see (within 5 standard errors), the added views selected."""
+    p = doc.partial.points if doc.partial else None
+    assert p is not None and p.points > 0
+    got = points_seen(part, wanted, c2w, 20_000)
+    chosen = [v.id for v in doc.viewpoints]
+    tol = 5 * np.sqrt(0.25 / 20_000) * np.sqrt(2)
+    assert p.seen_fraction == pytest.approx(got[chosen].any(axis=0).mean(), abs=tol)
+    assert p.reach_fraction == pytest.approx(got.any(axis=0).mean(), abs=tol)
+    assert p.reach_fraction >= p.seen_fraction and set(p.added) <= set(chosen)
+
+
 @pytest.mark.parametrize("rows", ["faces", "patches"])
 @pytest.mark.parametrize("formulation", ["density", "visibility"])
 def test_partial_cover_claims_hold_independently(part, formulation, rows):
@@ -367,6 +411,9 @@ def test_partial_cover_claims_hold_independently(part, formulation, rows):
     if formulation == "density" and rows == "patches":  # left short of r̄, still seen
         seen = w
         assert w[sampled].sum() >= SEEN_SHARE * w.sum() - 1e-9
+        hidden = np.unique(parent[np.isin(of, np.flatnonzero(recessed))])
+        wanted = part.counted & ~np.isin(np.arange(part.n_faces), hidden)
+        at_points(part, doc, wanted, [_c2w(c) for c in doc.candidates])
     fewest = partial_optimum(s, w, fraction)
     best = fewest if seen is None else partial_optimum(s, w, fraction, seen)
     assert doc.solver.objective == len(chosen) >= best >= fewest

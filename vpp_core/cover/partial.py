@@ -53,7 +53,7 @@ from __future__ import annotations
 
 import functools
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 
 import highspy
@@ -417,18 +417,28 @@ def prune_seen(
 ) -> np.ndarray:
     """(K',) sorted subset of `selected` (K,) that still satisfies rows of A (M, N) weighing
     `required` of w (M,), and with `seen` = (V, v, fraction) as seen_columns takes them, rows
-    of V weighing `fraction` of v's rows with an entry: each column dropped, the costliest
-    first, where both hold without it (a column the cover picked may be redundant once
-    seen_columns added others)."""
+    of V weighing `fraction` of v's rows with an entry (prune)."""
     V, v, fraction = seen
-    needs = [(A, w, required), (V, v, fraction * float(v[np.diff(V.indptr) > 0].sum()))]
-    checks = [_Tally(sp.csc_array(m), coverage(m, selected), wt, need) for m, wt, need in needs]
+    need = fraction * float(v[np.diff(V.indptr) > 0].sum())
+    return prune([(A, w, required), (V, v, need)], selected, costs)
+
+
+def prune(
+    checks: Sequence[tuple[sp.csr_array, np.ndarray, float]],
+    selected: np.ndarray,
+    costs: np.ndarray,
+) -> np.ndarray:
+    """(K',) sorted subset of `selected` (K,) whose columns still satisfy, for each
+    (A (M, N), w (M,), need) of `checks`, rows of A weighing `need` of w: each column dropped,
+    the costliest first, where all hold without it (a column the cover picked may be
+    redundant once others were added for another rule)."""
+    tallies = [_Tally(sp.csc_array(m), coverage(m, selected), wt, need) for m, wt, need in checks]
     keep = [int(j) for j in selected]
     for j in selected[np.argsort(-costs[selected], kind="stable")]:
-        lost = [t.lost(int(j)) for t in checks]
-        if all(t.met - x >= t.need - _slack(t.w) for t, x in zip(checks, lost, strict=True)):
+        lost = [t.lost(int(j)) for t in tallies]
+        if all(t.met - x >= t.need - _slack(t.w) for t, x in zip(tallies, lost, strict=True)):
             keep.remove(int(j))
-            for t, x in zip(checks, lost, strict=True):
+            for t, x in zip(tallies, lost, strict=True):
                 t.drop(int(j), x)
     return np.array(sorted(keep), dtype=np.int64)
 

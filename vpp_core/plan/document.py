@@ -435,6 +435,21 @@ class LeftOut(Uncoverable):
     """Coverable faces a partial cover leaves out."""
 
 
+class PointsInfo(BaseModel):
+    """The plan judged at points spread uniformly by area over the counted faces (seeded;
+    vpp_core.plan.pointseen): a point is seen by a view when it lies in its image and depth of
+    field, within the incidence limit, and the line from the camera reaches it first."""
+
+    points: int
+    seen_fraction: float
+    """Share of the points some selected view sees."""
+    reach_fraction: float
+    """Share of the points some candidate sees."""
+    added: list[int]
+    """Candidates added because each saw at least 0.1 % of the points more than the plan did,
+    in the order added (ids of `candidates`; in `viewpoints` too)."""
+
+
 class PartialInfo(BaseModel):
     """What a partial cover (target.min_coverage < 1) covers of the coverable area: the area
     of its rows less the recessed patches' (`cover_rows.recessed`); a patch row counts the
@@ -450,6 +465,9 @@ class PartialInfo(BaseModel):
     more on a patch): at least 0.999 of it where the cover may leave more short of r̄ (density
     rows; vpp_core.plan.pipeline.SEEN_SHARE)."""
     seen_fraction: float | None = None
+    points: PointsInfo | None = None
+    """The selected views judged at surface points, and the views added for what they see
+    that the patch rows missed (None: a cover that is not the default's partial cover)."""
 
 
 class Timings(BaseModel):

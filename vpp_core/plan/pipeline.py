@@ -76,6 +76,7 @@ from vpp_core.plan.document import (
 )
 from vpp_core.plan.metrics import evaluate, region_metrics
 from vpp_core.plan.objective import by_objective
+from vpp_core.plan.pointseen import PointJudge, surface_points
 from vpp_core.plan.regions import FaceTargets, Region, face_targets, mandatory_weights
 from vpp_core.plan.regionsdoc import region_members, regions_info
 from vpp_core.plan.robotplan import (
@@ -240,10 +241,12 @@ def solve(
     threads: int | None = None,
     costs: np.ndarray | None = None,
     mandatory: np.ndarray | None = None,
+    points: PointJudge | None = None,
 ) -> PartialCover:
     """Cover the rows (all, or target.min_coverage of their area) as `settings` ask,
     columns at `costs` (N,) (None: one each); `mandatory` (rows,) rows (regions with their own
-    target) are covered whatever min_coverage, which then applies to the other rows' area."""
+    target) are covered whatever min_coverage, which then applies to the other rows' area;
+    with `points`, grown where it sees area the cover's views do not (pointseen.fill)."""
     area = model.row_weights()
     strict = np.zeros(len(area), bool) if mandatory is None else mandatory
     weights, fraction = mandatory_weights(area, strict, target.fraction)
@@ -263,6 +266,8 @@ def solve(
         and target.fraction < SEEN_SHARE
     ):
         cover = seen_too(model, weights, cover, costs)  # what it leaves short is still seen
+    if points is not None:
+        cover = points.grow(model, weights, cover, costs)
     if weights is area:
         return cover
     required = target.fraction * float(area[~strict].sum()) + float(area[strict].sum())
@@ -281,6 +286,23 @@ def seen_too(
         return cover
     kept = prune_seen(model.matrix, weights, cover.required, seen, more, c)
     return grown(model.matrix, weights, cover, kept, c)
+
+
+def point_judge(
+    part: Part, request: PlanRequest, rows: Rows, views: Viewpoints, backend: RayBackend
+) -> PointJudge | None:
+    """The judge of the default cover (density patch rows, a partial cover that is then seen
+    whole: seen_too's), on the counted faces outside recessed patches; None otherwise."""
+    t = request.target
+    if t.formulation != "density" or t.rows != "patches" or t.fraction >= SEEN_SHARE:
+        return None
+    wanted = part.counted.copy()
+    if rows.recessed is not None:
+        wanted[_faces_of_patches(rows, rows.recessed)] = False
+    if not (wanted & (part.areas > 0)).any():
+        return None
+    pts = surface_points(part, wanted)
+    return PointJudge(request.sensor, views, pts, backend, SEEN_SHARE)
 
 
 class _Clock:
@@ -379,15 +401,17 @@ def finish(
     with clock.stage("matrices"):
         rows = rows_of(targets.whole, request, trace, cell)
         own = rows_model(rows, request, trace, cameras)
+    backend = backend or setup_backend(part, request, cell, trace.backend)
     with clock.stage("solve"):
         settings = _left(request.solver, clock.timings)
         must = rows.targets.region_rows(own.face_row, own.faces, own.matrix.shape[0])
-        cover = solve(own, request.target, settings, threads, None, must)
+        judge = point_judge(part, request, rows, views, backend)
+        cover = solve(own, request.target, settings, threads, None, must, judge)
         cover, tour = by_objective(
             cover,
             request.objective,
             views.positions,
-            lambda c: solve(own, request.target, settings, threads, c, must),
+            lambda c: solve(own, request.target, settings, threads, c, must, judge),
         )
         model = own if rows.elements is None else own.lifted(rows.elements.parent)
     with clock.stage("metrics"):
@@ -395,6 +419,8 @@ def finish(
             part, request, views, info, trace, model, cover, clock.timings, tour, targets
         )
         doc.cover_rows = _cover_rows(part, rows, own, model, trace, cover.result.selected)
+        if judge is not None and doc.partial is not None:
+            doc.partial.points = judge.info(cover.result.selected)
     with clock.stage("diagnostics"):
         doc.diagnostics = diagnose(
             part,
@@ -403,7 +429,7 @@ def finish(
             trace.counts,
             model,
             cover.result.selected,
-            backend or setup_backend(part, request, cell, trace.backend),
+            backend,
             partial=request.target.fraction < 1,
             normal_candidates=info.source == "generated" and not info.tilt_deg,
         )

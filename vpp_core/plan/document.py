@@ -446,8 +446,9 @@ class PointsInfo(BaseModel):
     reach_fraction: float
     """Share of the points some candidate sees."""
     added: list[int]
-    """Candidates added because each saw at least 0.1 % of the points more than the plan did,
-    in the order added (ids of `candidates`; in `viewpoints` too)."""
+    """Candidates added because each saw at least 0.1 % of the points more than the plan did
+    (by three Poisson deviations), in the order added (ids of `candidates`; in `viewpoints`
+    too)."""
 
 
 class PartialInfo(BaseModel):

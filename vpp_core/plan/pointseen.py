@@ -187,7 +187,8 @@ class PointJudge:
             return None
         n = seen.points
         got = int((coverage(seen.matrix, selected) > 0).sum())
-        added = [j for j in seen.added if j in set(selected.tolist())]
+        kept = set(selected.tolist())
+        added = [j for j in seen.added if j in kept]
         return PointsInfo(
             points=n, seen_fraction=got / n, reach_fraction=seen.reach / n, added=added
         )

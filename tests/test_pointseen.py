@@ -39,6 +39,11 @@ def looking_down(xy: list[tuple[float, float]], height: float = 400.0):
     return make_viewpoints(pos, gaze, np.tile([0.0, 1.0, 0.0], (n, 1)))
 
 
+def one(views):
+    """The first view's position and camera-to-world rotation, as `sees` takes them."""
+    return views.positions[0], views.rotations()[0]
+
+
 def test_points_are_uniform_by_area_on_the_wanted_faces():
     part = part_of(squares([(0, 0, 10, 10), (20, 0, 40, 30), (50, 0, 60, 10)]))
     wanted = np.array([True, True, True, True, False, False])  # the third square is not
@@ -64,7 +69,7 @@ def test_a_point_is_seen_unless_a_blocker_hides_it_or_it_lies_outside_the_frame(
     part = part_of(plate, lid)
     pts = surface_points(part, np.arange(part.n_faces) < 2, 20_000)
     view = looking_down([(0.0, 0.0)])
-    got = sees(SMALL, view, 0, pts, EmbreeBackend(part))
+    got = sees(SMALL, *one(view), pts, EmbreeBackend(part))
     # by hand: the line from (0, 0, 400) to (x, y, 0) crosses z = 50 at 7/8 of (x, y)
     x, y = pts.xyz[:, 0], pts.xyz[:, 1]
     hidden = (np.abs(x) * 7 / 8 < 20) & (np.abs(y) * 7 / 8 < 20)
@@ -84,9 +89,10 @@ def test_a_point_beyond_the_incidence_limit_or_the_depth_of_field_is_not_seen():
     steep = np.radians(SMALL.max_incidence_deg + 5)  # the gaze beyond the limit off the normal
     pos = 400 * np.array([[np.sin(steep), 0, np.cos(steep)]])
     grazing = make_viewpoints(pos, -pos / 400, np.array([[0.0, 0.0, 1.0]]))
-    assert not sees(SMALL, grazing, 0, pts, backend).any()
-    assert not sees(SMALL, looking_down([(0, 0)], SMALL.far_mm + 20), 0, pts, backend).any()
-    assert sees(SMALL, looking_down([(0, 0)]), 0, pts, backend).all()
+    far, near = looking_down([(0, 0)], SMALL.far_mm + 20), looking_down([(0, 0)])
+    assert not sees(SMALL, *one(grazing), pts, backend).any()
+    assert not sees(SMALL, *one(far), pts, backend).any()
+    assert sees(SMALL, *one(near), pts, backend).all()
 
 
 def test_fill_adds_the_views_that_see_area_in_bulk_not_slivers():

@@ -386,7 +386,7 @@ def seen_columns(
     target are still seen."""
     csc = sp.csc_array(A)
     ip, ix, dv = csc.indptr, csc.indices, csc.data
-    need = fraction * float(w[np.diff(A.indptr) > 0].sum()) - _slack(w)
+    need = seen_need(A, w, fraction) - _slack(w)
     r = np.maximum(1.0 - coverage(A, selected), 0.0)
     r[r <= BUILD_TOL] = 0.0
     chosen = set(int(j) for j in selected)
@@ -419,8 +419,13 @@ def prune_seen(
     `required` of w (M,), and with `seen` = (V, v, fraction) as seen_columns takes them, rows
     of V weighing `fraction` of v's rows with an entry (prune)."""
     V, v, fraction = seen
-    need = fraction * float(v[np.diff(V.indptr) > 0].sum())
-    return prune([(A, w, required), (V, v, need)], selected, costs)
+    return prune([(A, w, required), (V, v, seen_need(V, v, fraction))], selected, costs)
+
+
+def seen_need(V: sp.csr_array, v: np.ndarray, fraction: float) -> float:
+    """The weight of rows of V (M, N) that must be seen: `fraction` of v (M,) over the rows
+    some column has an entry in (seen_columns' target)."""
+    return fraction * float(v[np.diff(V.indptr) > 0].sum())
 
 
 def prune(

@@ -25,7 +25,7 @@ import scipy.sparse as sp
 from vpp_core.camera.pose import Viewpoints
 from vpp_core.camera.sensor import Sensor
 from vpp_core.cover.density import CoverModel
-from vpp_core.cover.partial import PartialCover, grown, prune
+from vpp_core.cover.partial import PartialCover, grown, prune, seen_need
 from vpp_core.cover.problem import coverage
 from vpp_core.mesh.part import Part
 from vpp_core.plan.document import PointsInfo
@@ -79,12 +79,17 @@ def surface_points(part: Part, wanted: np.ndarray, count: int = POINTS) -> Surfa
 
 
 def sees(
-    sensor: Sensor, views: Viewpoints, j: int, pts: SurfacePoints, backend: RayBackend
+    sensor: Sensor,
+    position: np.ndarray,
+    rotation: np.ndarray,
+    pts: SurfacePoints,
+    backend: RayBackend,
 ) -> np.ndarray:
-    """(n,) bool: the points view j sees (in its image and depth of field, within the incidence
-    limit, and first along the line from the camera: the face they lie on, or as deep)."""
-    d = pts.xyz - views.positions[j]
-    x, y, z = (d @ views.rotations()[j]).T
+    """(n,) bool: the points the camera at `position` (3,) mm, camera-to-world `rotation`
+    (3, 3), sees (in its image and depth of field, within the incidence limit, and first
+    along the line from the camera: the face they lie on, or as deep)."""
+    d = pts.xyz - position
+    x, y, z = (d @ rotation).T
     dist = np.sqrt(np.einsum("ij,ij->i", d, d))
     cos = np.abs(np.einsum("ij,ij->i", pts.normals, d)) / np.maximum(dist, 1e-12)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -97,7 +102,7 @@ def sees(
     out = np.zeros(len(d), dtype=bool)
     if len(idx):
         dirs = (d[idx] / dist[idx, None]).astype(np.float32)
-        prim, t = backend.first_hits(views.positions[j], dirs, float(dist[idx].max() * 1.001))
+        prim, t = backend.first_hits(position, dirs, float(dist[idx].max() * 1.001))
         near = np.abs(t - dist[idx]) <= 1e-5 * dist[idx] + 1e-4
         out[idx[(prim == pts.faces[idx]) | near]] = True
     return out
@@ -117,30 +122,28 @@ def fill(
 ) -> PointsSeen:
     """Candidates of `views` added to `selected` (K,) ids greedily, the one seeing the most
     points `pts` the plan does not first, while one sees least_gain of them more."""
-    n = len(pts.faces)
-    full = {int(j): sees(sensor, views, int(j), pts, backend) for j in selected}
+    n, pos, rot = len(pts.faces), views.positions, views.rotations()
+    full = {int(j): sees(sensor, pos[j], rot[j], pts, backend) for j in selected}
     seen = np.zeros(n, dtype=bool)
     for mask in full.values():
         seen |= mask
     rest = np.flatnonzero(~seen)
     left = SurfacePoints(pts.xyz[rest], pts.faces[rest], pts.normals[rest])
     others = np.setdiff1d(np.arange(len(views)), selected)
-    more = np.array([sees(sensor, views, int(j), left, backend) for j in others])
+    more = np.array([sees(sensor, pos[j], rot[j], left, backend) for j in others])
     more = more.reshape(len(others), len(rest))
     reach = int(seen.sum() + more.any(axis=0).sum())
     added: list[int] = []
-    got = int(seen.sum())
     while len(others) and (gain := more.sum(axis=1)).max() >= least_gain(n):
         k = int(gain.argmax())
         added.append(int(others[k]))
-        got += int(gain[k])
         more &= ~more[k]
-    full |= {j: sees(sensor, views, j, pts, backend) for j in added}
+    full |= {j: sees(sensor, pos[j], rot[j], pts, backend) for j in added}
     cols = np.array(list(full), dtype=np.int64)
     hits = np.array(list(full.values())).reshape(len(cols), n)
     point, col = np.nonzero(hits.T)
     matrix = sp.csr_array((np.ones(len(point)), (point, cols[col])), shape=(n, len(views)))
-    return PointsSeen(n, got, reach, added, matrix)
+    return PointsSeen(n, int(hits.any(axis=0).sum()), reach, added, matrix)
 
 
 class PointJudge:
@@ -172,7 +175,7 @@ class PointJudge:
             V, v = model.seen_rows(), model.row_weights()
             checks = [
                 (model.matrix, weights, cover.required),
-                (V, v, self.seen_share * float(v[np.diff(V.indptr) > 0].sum())),
+                (V, v, seen_need(V, v, self.seen_share)),
                 (seen.matrix, np.ones(seen.points), seen.seen - MIN_GAIN * seen.points),
             ]
             kept = prune(checks, np.union1d(selected, seen.added), c)

@@ -33,14 +33,27 @@ def vpp(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess[str]
 
 def vpp_here(capsys: pytest.CaptureFixture[str], *args: object) -> tuple[int, str]:
     """Run the CLI in this process: (exit status, what it wrote to stderr). An interpreter's
-    start costs about a second; the few tests that run it as a user would use `vpp`."""
-    from cli.main import main
+    start costs 1-2.5 s by the machine; the few tests that run it as a user would use `vpp`."""
+    run = vpp_in(capsys, *args)
+    return run.returncode, run.stderr
 
+
+def vpp_in(capsys: pytest.CaptureFixture[str], *args: object) -> subprocess.CompletedProcess[str]:
+    """Run the CLI in this process, its settings read from the environment afresh, as `vpp`
+    would: what it returned and wrote (stdout, stderr)."""
+    from cli.main import main
+    from worker.settings import get_settings
+
+    capsys.readouterr()  # what the test wrote before is not the command's
+    get_settings.cache_clear()
     try:
         code = main(list(map(str, args)))
     except SystemExit as exc:  # argparse's own errors
         code = exc.code if isinstance(exc.code, int) else 1
-    return code, capsys.readouterr().err
+    finally:
+        get_settings.cache_clear()
+    out = capsys.readouterr()
+    return subprocess.CompletedProcess(list(args), code, out.out, out.err)
 
 
 @pytest.fixture
@@ -54,10 +67,13 @@ def plate_files(tmp_path: Path) -> tuple[Path, Path]:
 
 
 @pytest.mark.parametrize("formulation, expected", [("density", 2), ("visibility", 1)])
-def test_plate_density_needs_two_views_visibility_one(plate_files, tmp_path, formulation, expected):
+def test_plate_density_needs_two_views_visibility_one(
+    plate_files, tmp_path, formulation, expected, capsys
+):
     mesh, views = plate_files
     out = tmp_path / f"{formulation}.json"
-    run = vpp(
+    run = vpp_in(
+        capsys,
         "plan",
         mesh,
         "--candidates-file",
@@ -84,10 +100,12 @@ def test_plate_density_needs_two_views_visibility_one(plate_files, tmp_path, for
     assert "viewpoints" in run.stdout and "optimal" in run.stdout
 
 
-def test_max_face_area_plans_on_elements(plate_files, tmp_path):
+def test_max_face_area_plans_on_elements(plate_files, tmp_path, capsys):
     mesh, views = plate_files
     out = tmp_path / "plan.json"
-    run = vpp("plan", mesh, "--candidates-file", views, "--max-face-area", "1", "-o", out, "-q")
+    run = vpp_in(
+        capsys, "plan", mesh, "--candidates-file", views, "--max-face-area", "1", "-o", out, "-q"
+    )
     assert run.returncode == 0, run.stderr
     doc = json.loads(out.read_text())
     assert doc["mesh"]["faces"] == 512  # each 200 mm² triangle into 256 of 0.78 mm²
@@ -98,13 +116,23 @@ def test_max_face_area_plans_on_elements(plate_files, tmp_path):
     assert doc["metrics"]["resolution"]["met_area"] == pytest.approx(1.0)
 
 
-def test_remesh_plans_on_an_isotropic_remesh(plate_files, tmp_path):
+def test_remesh_plans_on_an_isotropic_remesh(plate_files, tmp_path, capsys):
     pytest.importorskip("pymeshlab")
     mesh, views = plate_files
     out = tmp_path / "plan.json"
     ply = tmp_path / "planned.ply"
-    run = vpp(
-        "plan", mesh, "--candidates-file", views, "--remesh", "2", "-o", out, "--mesh-out", ply
+    run = vpp_in(
+        capsys,
+        "plan",
+        mesh,
+        "--candidates-file",
+        views,
+        "--remesh",
+        "2",
+        "-o",
+        out,
+        "--mesh-out",
+        ply,
     )
     assert run.returncode == 0, run.stderr
     doc = json.loads(out.read_text())
@@ -172,13 +200,13 @@ def test_plan_with_generated_candidates_writes_all_sections(tmp_path):
     assert json.loads(out2.read_text())["candidates"] == doc["candidates"]
 
 
-def test_min_coverage_plans_a_partial_cover_and_reports_it(tmp_path):
+def test_min_coverage_plans_a_partial_cover_and_reports_it(tmp_path, capsys):
     mesh = tmp_path / "box.stl"
     trimesh.creation.box([60, 40, 20]).export(mesh)
     out = tmp_path / "plan.json"
     common = ("--candidates", "40", "--seed", "1", "--sensor", _small_sensor(tmp_path), "-q")
     common += ("--no-adaptive", "--resolution", "1.2")  # one pool for both plans: they compare
-    run = vpp("plan", mesh, *common, "--min-coverage", "0.9", "-o", out)
+    run = vpp_in(capsys, "plan", mesh, *common, "--min-coverage", "0.9", "-o", out)
     assert run.returncode == 0, run.stderr
     assert "partial cover (min 90.00%)" in run.stdout and "sub-pixel faces" in run.stdout
     doc = json.loads(out.read_text())
@@ -194,7 +222,9 @@ def test_min_coverage_plans_a_partial_cover_and_reports_it(tmp_path):
         part["coverable_area_mm2"]
     )
     strict = tmp_path / "strict.json"
-    assert vpp("plan", mesh, *common, "--min-coverage", "1", "-o", strict).returncode == 0
+    assert (
+        vpp_in(capsys, "plan", mesh, *common, "--min-coverage", "1", "-o", strict).returncode == 0
+    )
     strict_doc = json.loads(strict.read_text())
     assert strict_doc["partial"] is None
     assert len(doc["viewpoints"]) <= len(strict_doc["viewpoints"])
@@ -230,10 +260,10 @@ def test_bad_meshes_fail_with_one_line_and_exit_2(name, capsys):
 
 
 @pytest.mark.parametrize("name", sorted(ACCEPTED))
-def test_accepted_bad_meshes_plan_and_report_the_problem(name, tmp_path):
+def test_accepted_bad_meshes_plan_and_report_the_problem(name, tmp_path, capsys):
     bad = shared_dir(MESHES / "bad") / name
     out = tmp_path / "plan.json"
-    run = vpp("plan", bad, "-q", "--candidates", "20", "-o", out)
+    run = vpp_in(capsys, "plan", bad, "-q", "--candidates", "20", "-o", out)
     assert run.returncode == 0, run.stderr
     doc = json.loads(out.read_text())
     assert doc["viewpoints"] and doc["metrics"]["coverage"]["area"] > 0.5
@@ -286,32 +316,32 @@ def test_bad_files_fail_with_one_line_and_exit_2(plate_files, tmp_path, capsys):
     assert len(run.stderr.strip().splitlines()) == 1
 
 
-def test_limits_are_settings(plate_files, monkeypatch):
+def test_limits_are_settings(plate_files, monkeypatch, capsys):
     mesh, views = plate_files
     monkeypatch.setenv("VPP_MAX_CANDIDATES", "1")
-    run = vpp("plan", mesh, "-q", "--candidates-file", views)
+    run = vpp_in(capsys, "plan", mesh, "-q", "--candidates-file", views)
     assert run.returncode == 2 and "2 candidates exceed the limit of 1" in run.stderr
     monkeypatch.setenv("VPP_MAX_CANDIDATES", "10")
     monkeypatch.setenv("VPP_MAX_RAYS", "1000000")
-    run = vpp("plan", mesh, "-q", "--candidates-file", views)
+    run = vpp_in(capsys, "plan", mesh, "-q", "--candidates-file", views)
     assert run.returncode == 2 and "rays exceed the limit" in run.stderr
     monkeypatch.setenv("VPP_MAX_FACES", "100")
-    run = vpp("plan", mesh, "-q", "--max-face-area", "1")
+    run = vpp_in(capsys, "plan", mesh, "-q", "--max-face-area", "1")
     assert run.returncode == 2 and "gives at least 512 faces, the limit is 100" in run.stderr
-    run = vpp("plan", mesh, "-q", "--remesh", "1")
+    run = vpp_in(capsys, "plan", mesh, "-q", "--remesh", "1")
     assert run.returncode == 2 and "gives about 924 faces, the limit is 100" in run.stderr
     monkeypatch.setenv("VPP_MAX_FACES", "1")
-    run = vpp("plan", mesh, "-q")
+    run = vpp_in(capsys, "plan", mesh, "-q")
     assert run.returncode == 2 and "limit is 1" in run.stderr
 
 
-def test_study_resolution_writes_json_csv_and_plots(tmp_path):
+def test_study_resolution_writes_json_csv_and_plots(tmp_path, capsys):
     mesh = tmp_path / "bushing.stl"
-    assert vpp("sample", mesh).returncode == 0
+    assert vpp_in(capsys, "sample", mesh).returncode == 0
     sensor = _small_sensor(tmp_path)
     out, csv, plots = tmp_path / "s.json", tmp_path / "s.csv", tmp_path / "plots"
-    run = vpp(
-        "study", "resolution", mesh, "--sensor", sensor, "--candidates", "40", "-q",
+    run = vpp_in(
+        capsys, "study", "resolution", mesh, "--sensor", sensor, "--candidates", "40", "-q",
         "--standoff", "500", "--resolutions", "1.2,2.5", "-o", out, "--csv", csv,
         "--plots", plots,
     )  # fmt: skip
@@ -326,9 +356,9 @@ def test_study_resolution_writes_json_csv_and_plots(tmp_path):
     assert {"study.json", "study.csv", "sweep.png", "histogram-1.2mm.png"} <= names
     # the same count from a fresh plan on the same pool (a study adds no view-sphere views)
     plan_out = tmp_path / "plan.json"
-    run = vpp("plan", mesh, "--sensor", sensor, "--candidates", "40", "-q", "--no-adaptive",
-              "--sphere", "0", "--standoff", "500", "--resolution", "1.2",
-              "-o", plan_out)  # fmt: skip
+    run = vpp_in(capsys, "plan", mesh, "--sensor", sensor, "--candidates", "40", "-q",
+                 "--no-adaptive", "--sphere", "0", "--standoff", "500", "--resolution", "1.2",
+                 "-o", plan_out)  # fmt: skip
     assert run.returncode == 0, run.stderr
     row = next(
         r for r in doc["rows"] if r["resolution_mm"] == 1.2 and r["formulation"] == "density"
@@ -336,11 +366,11 @@ def test_study_resolution_writes_json_csv_and_plots(tmp_path):
     assert row["viewpoints"] == len(json.loads(plan_out.read_text())["viewpoints"])
 
 
-def test_plan_point_cloud_and_plots(plate_files, tmp_path):
+def test_plan_point_cloud_and_plots(plate_files, tmp_path, capsys):
     mesh, views = plate_files
     ply, plots = tmp_path / "cloud.ply", tmp_path / "plots"
-    run = vpp("plan", mesh, "--candidates-file", views, "-q", "--point-cloud", ply,
-              "--plots", plots)  # fmt: skip
+    run = vpp_in(capsys, "plan", mesh, "--candidates-file", views, "-q", "--point-cloud", ply,
+                 "--plots", plots)  # fmt: skip
     assert run.returncode == 0, run.stderr
     cloud = trimesh.load(ply)
     stats = json.loads((plots / "point-cloud.json").read_text())

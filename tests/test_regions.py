@@ -559,7 +559,7 @@ def test_a_resolution_sweep_keeps_each_region_s_own_target(part):
 
 def test_cli_plans_with_regions_and_labels_and_refuses_bad_ones(tmp_path, capsys):
     from cli.main import main
-    from tests.test_cli import vpp
+    from tests.test_cli import vpp, vpp_in
 
     v, f = plate_mesh()
     mesh = tmp_path / "plate.stl"
@@ -572,7 +572,7 @@ def test_cli_plans_with_regions_and_labels_and_refuses_bad_ones(tmp_path, capsys
     regions.write_text(json.dumps([{"name": "one", "label": 1, "resolution_mm": 0.09}]))
     out = tmp_path / "plan.json"
     common = ("--candidates-file", views, "--profile", "paper", "-q")
-    run = vpp("plan", mesh, *common, "--regions", regions, "--labels", labels, "-o", out)
+    run = vpp_in(capsys, "plan", mesh, *common, "--regions", regions, "--labels", labels, "-o", out)
     assert run.returncode == 0, run.stderr
     doc = json.loads(out.read_text())
     by = {r["name"]: r for r in doc["metrics"]["regions"]}

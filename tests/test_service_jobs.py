@@ -138,6 +138,7 @@ def test_cancel_stops_a_running_job_and_a_resubmission_resumes(
 ) -> None:
     mesh = upload_sample(api)
     body = {"mesh_id": mesh, "profile": "paper", "candidates": {"count": 600, "seed": 1}}
+    body["solver"] = {"name": "greedy"}  # the trace is what is cancelled (the MIP of 600: 18 s)
     job = submit(api, body)
     start_workers(1)
     deadline = time.monotonic() + 60

@@ -24,6 +24,7 @@ from redis.exceptions import ConnectionError, TimeoutError  # noqa: E402
 from rq import Queue, Worker  # noqa: E402
 from rq.job import Job  # noqa: E402
 
+import vpp_core.report.plots  # noqa: E402,F401  (matplotlib: each plan job draws plots)
 import worker.jobs  # noqa: E402,F401
 from worker import logs, scheduled, webhooks  # noqa: E402
 from worker.jobs import connect  # noqa: E402

@@ -45,7 +45,6 @@ from vpp_core.plan.pipeline import (
     tracer_of,
 )
 from vpp_core.plan.warm import warm
-from vpp_core.report.plots import plan_plots
 from vpp_core.report.scene import plan_scene, unpack
 from vpp_core.trace.rays import RayBackend
 from vpp_core.trace.raytrace import Trace, join_traces, make_backend, trace_counts
@@ -172,6 +171,8 @@ def _plan(ctx: Context, plan: str) -> dict[str, Any]:
     ctx.meta.update(force=True, stage="plots")
     scene = plan_scene(part, doc, trace.counts, cell)
     faces = unpack(scene)[1]  # the part in cameras.png wears the viewer's r* colours
+    from vpp_core.report.plots import plan_plots  # matplotlib: preloaded by workers, not the API
+
     pngs = plan_plots(part, doc, faces=(faces["state"], faces["resolution_mm"]))
     for name, png in pngs.items():  # before the document: it means done
         ctx.store.put(art.plot_key(f"plans/{plan}", name), png)

@@ -12,7 +12,6 @@ import io
 import json
 from typing import Any
 
-from vpp_core.report.plots import neighbours_png, study_plots
 from vpp_core.report.pointcloud import simulate_plan, write_ply
 from vpp_core.report.studies import decimation_study, resolution_sweep, study_csv
 from worker import artifacts as art
@@ -44,6 +43,8 @@ def _study(ctx: Context, study: str) -> dict[str, Any]:
         progress=stage_progress(ctx.meta),
         cell=art.get_cell(ctx.store, request.setup),
     )
+    from vpp_core.report.plots import study_plots  # matplotlib: preloaded by workers only
+
     plots = study_plots(doc)
     for name, png in plots.items():
         ctx.store.put(art.plot_key(f"studies/{study}", name), png)
@@ -72,6 +73,8 @@ def _cloud(ctx: Context, cloud: str) -> dict[str, Any]:
     ply = io.BytesIO()
     write_ply(ply, points, counts)
     ctx.store.put(art.cloud_key(cloud, "ply"), ply.getvalue())
+    from vpp_core.report.plots import neighbours_png  # matplotlib: preloaded by workers only
+
     ctx.store.put(art.plot_key(f"clouds/{cloud}", "neighbours.png"), neighbours_png(stats))
     ctx.store.put(art.cloud_key(cloud), stats.model_dump_json().encode())
     ctx.meta.update(force=True, stage="done")

@@ -174,6 +174,39 @@ def test_the_page_draws_the_plan_and_a_clicked_camera_shows_its_pose(live, brows
     page.page.locator("#next").click()
     assert page.js("window.vppViewer.selected()") == (other + 1) % k_views
     assert page.errors == []
+    _partial_rows(browser, f"{url}/v1/plans/{plan}", doc)
+
+
+def _partial_rows(browser: Any, plan_url: str, doc: dict[str, Any]) -> None:
+    """A default plan's partial cover and its judge at points are stated in the summary, with a
+    tip: the plan document served to the page is this paper plan's with a `partial` section
+    (the document's own shape, vpp_core.plan.document.PartialInfo) put in."""
+    partial = {
+        "min_coverage": 0.99,
+        "coverable_area_mm2": 1000.0,
+        "covered_area_mm2": 995.0,
+        "covered_fraction": 0.995,
+        "left_out": {"faces": 1, "area_mm2": 5.0, "ids": [0]},
+        "points": {"points": 20_000, "seen_fraction": 0.9987, "reach_fraction": 0.9991},
+    }
+    partial["points"]["added"] = [doc["viewpoints"][-1]["id"]]
+
+    def served(route: Any) -> None:
+        response = route.fetch()
+        route.fulfill(response=response, json={**response.json(), "partial": partial})
+
+    page = Page(browser, f"{plan_url}/view", before=lambda p: p.route(f"**{plan_url}", served))
+    rows = page.js("Object.entries(window.vppViewer.summary)")
+    names = [k for k, _ in rows]
+    assert names.index("seen at points") == names.index("partial cover") + 1
+    summary = dict(rows)
+    assert summary["partial cover"] == "99.5\u00a0% of coverable area (asked 99.0\u00a0%)"
+    assert summary["seen at points"] == (
+        "99.9\u00a0% of 20,000\u00a0points (candidates 99.9\u00a0%); 1 view added for them"
+    )
+    tip = page.page.locator("#metrics th", has_text="seen at points").get_attribute("title")
+    assert tip is not None and "spread evenly by area" in tip
+    assert page.errors == []
 
 
 def test_looking_through_a_camera_shows_what_a_ray_cast_sees(live, browser) -> None:

@@ -38,6 +38,10 @@ const TIPS = {
   'resolution met': 'Share of the counted area (and faces) whose achieved resolution r* is at '
     + 'or below the target r̄, with every selected viewpoint counted.',
   coverage: 'Share of the counted area (and faces) that at least one selected viewpoint sees.',
+  'seen at points': 'The plan judged a second time at points spread evenly by area over the '
+    + 'counted surface: the share a selected viewpoint sees (in its image and depth of field, '
+    + 'within the incidence limit, nothing in front), next to the share any candidate sees; '
+    + 'views the patch rows did not need but these points did are counted as added.',
   uncoverable: 'Faces that no candidate sees: no plan can cover them.',
 };
 
@@ -166,9 +170,17 @@ function summary(doc) {
     rows.push([`region ${g.name}`, what]);
   }
   if (doc.partial) rows.splice(5, 0, ['partial cover', `${pct(doc.partial.covered_fraction)} of coverable area (asked ${pct(doc.partial.min_coverage)})`]);
+  const points = doc.partial?.points;
+  if (points) rows.splice(6, 0, ['seen at points', seenAtPoints(points)]);
   const th = (k) => (TIPS[k] ? `<th title="${TIPS[k]}" class="tip">${k}</th>` : `<th>${k}</th>`);
   $('metrics').innerHTML = rows.map(([k, v]) => `<tr>${th(k)}<td>${v}</td></tr>`).join('');
   api.summary = Object.fromEntries(rows);
+}
+
+/** The plan judged at surface points (partial.points): seen, what the candidates reach, added. */
+function seenAtPoints(p) {
+  const added = p.added.length ? `; ${p.added.length} view${p.added.length > 1 ? 's' : ''} added for them` : '';
+  return `${pct(p.seen_fraction)} of ${p.points.toLocaleString()}${NB}points (candidates ${pct(p.reach_fraction)})${added}`;
 }
 
 function legend(doc, scene, scale) {

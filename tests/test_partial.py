@@ -28,7 +28,7 @@ from vpp_core.cover.partial import (
 )
 from vpp_core.cover.problem import BUILD_TOL
 from vpp_core.cover.reduce import row_groups
-from vpp_core.cover.setcover import solve_cover
+from vpp_core.cover.setcover import SEARCH_PATIENCE, solve_cover
 from vpp_core.errors import SolverError
 
 
@@ -334,14 +334,18 @@ def test_with_one_thread_a_quick_try_then_the_search_then_highs_again(monkeypatc
     monkeypatch.setattr("vpp_core.cover.partial.submit", fake)
     walk = partial_module._walk
     monkeypatch.setattr(
-        "vpp_core.cover.partial._walk", lambda g, c, s, *a: walks.append(s) or walk(g, c, s, *a)
+        "vpp_core.cover.partial._walk",
+        lambda g, c, s, *a: walks.append((s, a[-1])) or walk(g, c, s, *a),
     )
     out = solve_partial(A, w, 0.95, time_limit=3.0, threads=1)
     assert out.result.objective == optimum and out.achieved >= out.required - 1e-9
     g = _merged(A, w, np.ones(16))
     assert starts and all(start is None for start in starts)  # the quick try, and HiGHS cold
     greedy = greedy_partial(g.A, np.ones(g.A.shape[1]), g.w, 0.95 * w.sum())
-    assert len(walks) == 1 and walks[0].tolist() == greedy.tolist()  # the search from greedy
+    assert len(walks) == 1 and walks[0][0].tolist() == greedy.tolist()  # the search from greedy
+    # ...which gives up, as the strict cover's does, after SEARCH_PATIENCE steps per column
+    # without a cheaper cover (it walked its whole share: 32 s of a 30-column model's 50 s)
+    assert walks[0][1] == SEARCH_PATIENCE * g.A.shape[1]
     if len(starts) == 1:  # not started again when the search met the LP bound
         assert out.result.status == "optimal"
 

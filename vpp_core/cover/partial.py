@@ -41,11 +41,13 @@ the search found 27 views where HiGHS kept 28, on the counter's (7 889 rows) HiG
 the search reached 83. With one thread (a service worker on a machine with as many cores as
 workers) they take turns, as in the strict cover: HiGHS a quick try of QUICK_SHARE of the
 time (a model it proves at once is answered at once), the search SEARCH_SHARE of what is
-left, then HiGHS again: on one core over nine default models at 36 s, 2 views fewer in all
-than HiGHS alone (docs/setcover.md; measured without the quick try, which session 41 added
-when a 49-camera plan spent half its minute in the search, and with HiGHS then started from
-the search's cover, not cold; not measured again). The status is
-"optimal" only when the bound meets the cover's cost.
+left or until SEARCH_PATIENCE steps per column find no cheaper cover (as the strict cover's;
+session 60: a 30-column model of 1 104 rows the search had no cheaper cover for took 32 s of
+its 50 s limit, 10 s since, HiGHS proving it in 4.3 s), then HiGHS again: on one core over
+nine default models at 36 s, 2 views fewer in all than HiGHS alone (docs/setcover.md;
+measured without the quick try, which session 41 added when a 49-camera plan spent half its
+minute in the search, and with HiGHS then started from the search's cover, not cold; not
+measured again). The status is "optimal" only when the bound meets the cover's cost.
 f = 1 is the strict cover (`solve_cover`).
 """
 
@@ -78,6 +80,7 @@ from vpp_core.cover.problem import (
 from vpp_core.cover.reduce import row_groups, undominated_columns
 from vpp_core.cover.setcover import (
     QUICK_SHARE,
+    SEARCH_PATIENCE,
     SEARCH_SHARE,
     CoverResult,
     closes_gap,
@@ -280,7 +283,8 @@ def _milp(
             best, found = _offered(g, c, required, best, found, h)
             if h.status != highspy.HighsModelStatus.kOptimal:  # the search from the better
                 ahead = time.perf_counter() + SEARCH_SHARE * (deadline - time.perf_counter())
-                best, found = _walk(g, c, best, required, ahead, bound, lambda: False)
+                patience = SEARCH_PATIENCE * g.A.shape[1]  # as the strict cover's search alone
+                best, found = _walk(g, c, best, required, ahead, bound, lambda: False, patience)
         time_limit = deadline - time.perf_counter()
         proven = h.status == highspy.HighsModelStatus.kOptimal
         if time_limit > 0.0 and not proven and not closes_gap(bound, c[best].sum(), integral)[1]:
@@ -323,14 +327,24 @@ def _walk(
     deadline: float,
     bound: float,
     stop: Callable[[], bool],
+    patience: int = 10**12,
 ) -> tuple[np.ndarray, float | None]:
     """The row-weighting search on the merged model from the partial cover `start` until
-    `deadline`, `stop()` or the cost `bound`: (a partial cover no dearer, time found or None)."""
+    `deadline`, `stop()`, the cost `bound` or `patience` steps without a cheaper cover: (a
+    partial cover no dearer, time found or None)."""
     if not rowweight.compiled(deadline - time.perf_counter()):
         return start, None
     budget = float(g.w.sum()) - required + _slack(g.w)
     found, at = rowweight.search(
-        g.A, c, start, deadline, target=bound, stop=stop, area=g.w, budget=budget
+        g.A,
+        c,
+        start,
+        deadline,
+        target=bound,
+        patience=patience,
+        stop=stop,
+        area=g.w,
+        budget=budget,
     )
     if at is None or not _reaches(g.A, found, g.w, required) or c[found].sum() >= c[start].sum():
         return start, None

@@ -187,9 +187,13 @@ def _partial_rows(browser: Any, plan_url: str, doc: dict[str, Any]) -> None:
         "covered_area_mm2": 995.0,
         "covered_fraction": 0.995,
         "left_out": {"faces": 1, "area_mm2": 5.0, "ids": [0]},
-        "points": {"points": 20_000, "seen_fraction": 0.9987, "reach_fraction": 0.9991},
+        "points": {
+            "points": 20_000,
+            "seen_fraction": 0.9987,
+            "reach_fraction": 0.9991,
+            "added": [doc["viewpoints"][-1]["id"]],
+        },
     }
-    partial["points"]["added"] = [doc["viewpoints"][-1]["id"]]
 
     def served(route: Any) -> None:
         response = route.fetch()

@@ -43,8 +43,8 @@ quarter of the rays, where a test compares two greedy covers of one camera."""
 def partial_view_counts(pairs: list[tuple[Part, PlanRequest]]) -> list[int]:
     """Views of each (part, request) plan, each checked to cover the requested fraction;
     what each plan was made of is printed (shown when a comparison of counts fails: pymeshlab
-    remeshes the same input differently in different installations, 18 850 or 18 862 faces
-    for plate_holes at 4 mm, session 60)."""
+    remeshes the same input differently depending on the folder it is installed in, 18 850
+    or 18 862 faces for plate_holes at 4 mm; docs/cad-meshes.md)."""
     from vpp_core.plan.pipeline import plan
 
     counts = []
@@ -117,7 +117,8 @@ def test_tilted_candidates_keep_plate_holes_counts_within_one_across_tessellatio
     covers at a 10 s limit there were 5 and 7, so its count depended on the machine. Not at
     half the camera's resolution (HALF): there the remesh of a fresh install (18 850 faces)
     gave 6 and 8, another venv's (18 862 faces, the same pymeshlab and numpy) 6 and 7
-    (session 60)."""
+    (session 60); at full resolution 6 and 7 on both (session 61: pymeshlab imported from
+    folders of different path lengths, which is what decides the remesh)."""
     pytest.importorskip("pymeshlab")
     from vpp_core.mesh.remesh import isotropic_remesh
 

@@ -100,3 +100,28 @@ def test_metrics_on_a_hand_example():
     assert sum(h.faces) + h.overflow_faces + h.unseen_faces == 4
     assert sum(h.area_mm2) + h.overflow_area_mm2 + h.unseen_area_mm2 == pytest.approx(8.0)
     assert m.resolution.median_mm == pytest.approx(0.75)  # r* = 0.5 and 1.0
+
+
+def test_a_patch_centre_beside_or_behind_a_view_gets_a_finite_density_and_no_nan():
+    """A patch larger than the stand-off can have its centre beside or behind a view that
+    lands rays on it (a part many metres across): its ray density there is finite and huge,
+    so the view samples a vanishing share of it, and a row no view samples any share of gets
+    S = 0, not NaN."""
+    import warnings
+
+    from vpp_core.camera.pose import make_viewpoints
+    from vpp_core.camera.sensor import Sensor
+    from vpp_core.cover.density import Cameras, s_entries
+
+    sensor = Sensor()
+    cams = Cameras(make_viewpoints(np.zeros((1, 3)), np.array([[0.0, 0.0, 1.0]])), sensor)
+    ahead, beside, behind = [0.0, 0.0, 400.0], [500.0, 0.0, 0.0], [0.0, 0.0, -400.0]
+    normals = np.array([[0.0, 0.0, -1.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    counts = sp.csr_array(([10.0, 10.0], [0, 0], [0, 1, 2]), shape=(2, 1))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no division by zero, no overflow
+        rho = cams.ray_density(np.array([ahead, beside, behind]), normals, np.zeros(3, int))
+        s = s_entries(counts, np.ones(2), np.full(2, 0.18), np.array([0.5, 0.0]))
+    assert rho[0] == pytest.approx(sensor.fx * sensor.fy / 400.0**2)  # head-on: f² / z²
+    assert np.all(np.isfinite(rho)) and rho[1] > 1e12 * rho[0] and rho[2] > 1e12 * rho[0]
+    assert np.all(np.isfinite(s)) and s[0] > 0 and s[1] == 0.0

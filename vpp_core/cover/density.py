@@ -38,6 +38,11 @@ STRAY_RAYS = 3
 patch holds about 25 samples at the target density; docs/quality.md has the measurement)."""
 MET_RTOL = 1e-9
 """Relative slack on δ ≥ δ̄: absorbs float rounding of sums, far below any physical effect."""
+MIN_DEPTH_MM = 1e-6
+"""Least depth (mm) a patch centre is given in Cameras.ray_density: a patch larger than the
+stand-off (a part many metres across, its elements capped at MAX_ELEMENTS) can have its
+centre beside or behind a view that lands rays on it; there the density is taken as huge
+(the view samples a vanishing share) instead of dividing by zero (session 61)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -111,12 +116,11 @@ class Cameras:
         with unit normal normals[k] (K, 3): cos θ fx fy / (z² cos α), z the depth, α the
         ray's angle off the optical axis, θ its incidence."""
         d = points - self.views.positions[cols]
-        r = np.linalg.norm(d, axis=1)
-        z = np.einsum("kj,kj->k", d, self.views.gazes[cols])
-        cos_theta = np.abs(np.einsum("kj,kj->k", d, normals)) / np.maximum(r, 1e-300)
-        cos_alpha = np.maximum(z, 1e-300) / np.maximum(r, 1e-300)
+        r = np.maximum(np.linalg.norm(d, axis=1), MIN_DEPTH_MM)
+        z = np.maximum(np.einsum("kj,kj->k", d, self.views.gazes[cols]), MIN_DEPTH_MM)
+        cos_theta = np.abs(np.einsum("kj,kj->k", d, normals)) / r
         fxy = self.sensor.fx * self.sensor.fy
-        return np.asarray(cos_theta * fxy / (np.maximum(z, 1e-300) ** 2 * cos_alpha))
+        return np.asarray(cos_theta * fxy * r / z**3)  # z² cos α = z³ / r
 
 
 def seen_share(counts: sp.csr_array, patches: Patches, cameras: Cameras) -> np.ndarray:
@@ -204,13 +208,14 @@ def s_entries(
     inv_area = np.divide(1.0, areas, out=np.zeros(len(areas)), where=areas > 0)
     data = np.repeat(inv_area, per_row)
     np.multiply(counts.data, data, out=data)  # R_ij / A_i
-    if share is not None:  # the rays fall on the share f_ij of the row
-        np.divide(data, share, out=data)
+    if share is not None:  # the rays fall on the share f_ij of the row (none: S_ij = 0)
+        data = np.divide(data, share, out=np.zeros_like(data), where=share > 0)
     np.sqrt(data, out=data)  # δ_ij
     np.multiply(data, np.repeat(resolution_mm, per_row), out=data)
     np.minimum(data, 1.0, out=data)  # min(1, δ_ij r̄_i)
-    if share is not None:
-        np.multiply(data, share / np.repeat(reach(counts.indptr, share), per_row), out=data)
+    if share is not None:  # f_ij / u_i; a row no view samples any share of gets none
+        best = np.repeat(reach(counts.indptr, share), per_row)
+        np.multiply(data, np.divide(share, best, out=np.zeros_like(share), where=best > 0), data)
         np.minimum(data, 1.0, out=data)
     return data
 

@@ -225,3 +225,25 @@ def test_element_hint_when_big_faces_are_seen_by_a_sliver_of_rays_and_not_after_
     under = undersampled(fine, Sensor(), view, r, np.array([0]), 1.0)
     assert under.faces == 0 and under.unsampled_mm2 == 0.0
     assert _element_hint(under, fine.area_mm2) is None
+
+
+def test_the_element_hint_states_a_share_of_the_area_the_candidates_reach():
+    """A 100 m cube at 0.18 mm: its 12 faces are each hit by a ray, and nearly all of their
+    area by none; the hint's share is of the faces the candidates reach (so at most 100 %),
+    not of the area in sampled patches (1 % of it here, which gave 164 525 %)."""
+    import re
+
+    from vpp_core.plan.document import CandidateGenerator, PlanRequest, SolverSettings
+    from vpp_core.plan.pipeline import plan
+
+    box = trimesh.creation.box(extents=[1e5, 1e5, 1e5])
+    request = PlanRequest(
+        sensor=Sensor(width_px=320, height_px=200),
+        candidates=CandidateGenerator(count=30),
+        solver=SolverSettings(name="greedy", time_limit_s=10),
+    )
+    doc = plan(part_from_arrays(box.vertices, box.faces), request)
+    hint = doc.diagnostics.hint or ""
+    share = re.search(r"\(([\d.]+)% of the area the candidates reach\)", hint)
+    assert share is not None, hint
+    assert 99.0 <= float(share.group(1)) <= 100.0

@@ -154,6 +154,7 @@ def diagnose(
     forced = np.intersect1d(r.indices[first[rays >= WELL_SEEN_RAYS]], selected)
     under = undersampled(part, sensor, views, r, selected, ELEMENT_FOOTPRINTS * p * p)
     coverable = float(model.areas.sum())
+    reached = float(areas[counted & (seen_by > 0)].sum())  # faces some candidate's ray hits
     return Diagnostics(
         pixel_footprint_mm=p,
         subpixel=_group(subpixel, areas),
@@ -174,7 +175,7 @@ def diagnose(
         driven_views=len(driven),
         driven_area_mm2=driven_area,
         hint=_join(
-            _element_hint(under, coverable),
+            _element_hint(under, reached),
             _tilt_hint(len(forced), len(causes)) if normal_candidates else None,
             None if partial else _hint(len(driven), len(causes), driven_area, coverable),
         ),
@@ -338,16 +339,18 @@ def _tilt_hint(forced: int, views: int) -> str | None:
     )
 
 
-def _element_hint(under: Undersampled, coverable: float) -> str | None:
-    """The hint when seen faces larger than an element hold area that no ray lands on."""
-    if coverable <= 0 or under.unsampled_mm2 < UNSAMPLED_SHARE * coverable:
+def _element_hint(under: Undersampled, reached: float) -> str | None:
+    """The hint when seen faces larger than an element hold area that no ray lands on;
+    `reached`: the area (mm²) of the counted faces some candidate's ray hits, of which the
+    unsampled area is a share (a face hit by one ray counts whole in both)."""
+    if reached <= 0 or under.unsampled_mm2 < UNSAMPLED_SHARE * reached:
         return None
     a, edge = f"{under.element_mm2:g}", f"{math.sqrt(under.element_mm2):.2g}"
     return (
         f"faces larger than {a} mm² count as seen when one ray lands on them: "
-        f"{under.unsampled_mm2:.3g} mm² of them ({under.unsampled_mm2 / coverable:.2%} of the "
-        f"coverable area) gets no ray from this plan, and {under.faces} get rays on less than "
-        f"half of their area; split them into area elements (--max-face-area {a}, or "
+        f"{under.unsampled_mm2:.3g} mm² of them ({under.unsampled_mm2 / reached:.2%} of the "
+        f"area the candidates reach) gets no ray from this plan, and {under.faces} get rays on "
+        f"less than half of their area; split them into area elements (--max-face-area {a}, or "
         "max_face_area_mm2 at upload) so that seen means seen, or remesh the part "
         f"(--remesh {edge}, or remesh_mm) for a count that does not depend on its export"
     )

@@ -6,6 +6,7 @@ import json
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -66,28 +67,21 @@ def plate_files(tmp_path: Path) -> tuple[Path, Path]:
     return mesh, views
 
 
-@pytest.mark.parametrize("formulation, expected", [("density", 2), ("visibility", 1)])
-def test_plate_density_needs_two_views_visibility_one(
-    plate_files, tmp_path, formulation, expected, capsys
-):
+def plan_plate(
+    capsys: pytest.CaptureFixture[str], plate_files: tuple[Path, Path], *options: object
+) -> tuple[subprocess.CompletedProcess[str], dict[str, Any]]:
+    """`vpp plan` of the plate from its two views with `options` (in-process, -q): the run,
+    checked to exit 0, and the plan document it wrote."""
     mesh, views = plate_files
-    out = tmp_path / f"{formulation}.json"
-    run = vpp_in(
-        capsys,
-        "plan",
-        mesh,
-        "--candidates-file",
-        views,
-        "--formulation",
-        formulation,
-        "--resolution",
-        "0.18",
-        "-o",
-        out,
-        "-q",
-    )
+    out = mesh.with_name("plan.json")
+    run = vpp_in(capsys, "plan", mesh, "--candidates-file", views, *options, "-o", out, "-q")
     assert run.returncode == 0, run.stderr
-    doc = json.loads(out.read_text())
+    return run, json.loads(out.read_text())
+
+
+@pytest.mark.parametrize("formulation, expected", [("density", 2), ("visibility", 1)])
+def test_plate_density_needs_two_views_visibility_one(plate_files, formulation, expected, capsys):
+    run, doc = plan_plate(capsys, plate_files, "--formulation", formulation, "--resolution", "0.18")
     assert len(doc["viewpoints"]) == expected
     assert doc["solver"]["status"] == "optimal" and doc["solver"]["objective"] == expected
     assert doc["metrics"]["coverage"]["area"] == pytest.approx(1.0)
@@ -100,14 +94,8 @@ def test_plate_density_needs_two_views_visibility_one(
     assert "viewpoints" in run.stdout and "optimal" in run.stdout
 
 
-def test_max_face_area_plans_on_elements(plate_files, tmp_path, capsys):
-    mesh, views = plate_files
-    out = tmp_path / "plan.json"
-    run = vpp_in(
-        capsys, "plan", mesh, "--candidates-file", views, "--max-face-area", "1", "-o", out, "-q"
-    )
-    assert run.returncode == 0, run.stderr
-    doc = json.loads(out.read_text())
+def test_max_face_area_plans_on_elements(plate_files, capsys):
+    _, doc = plan_plate(capsys, plate_files, "--max-face-area", "1")
     assert doc["mesh"]["faces"] == 512  # each 200 mm² triangle into 256 of 0.78 mm²
     note = "faces larger than 1 mm² or longer than 2 mm split: 2 faces -> 512"
     assert note in doc["mesh"]["warnings"]
@@ -118,24 +106,8 @@ def test_max_face_area_plans_on_elements(plate_files, tmp_path, capsys):
 
 def test_remesh_plans_on_an_isotropic_remesh(plate_files, tmp_path, capsys):
     pytest.importorskip("pymeshlab")
-    mesh, views = plate_files
-    out = tmp_path / "plan.json"
     ply = tmp_path / "planned.ply"
-    run = vpp_in(
-        capsys,
-        "plan",
-        mesh,
-        "--candidates-file",
-        views,
-        "--remesh",
-        "2",
-        "-o",
-        out,
-        "--mesh-out",
-        ply,
-    )
-    assert run.returncode == 0, run.stderr
-    doc = json.loads(out.read_text())
+    _, doc = plan_plate(capsys, plate_files, "--remesh", "2", "--mesh-out", ply)
     assert any(w.startswith("remeshed at 2 mm edges: 2 faces ->") for w in doc["mesh"]["warnings"])
     assert doc["mesh"]["faces"] > 100 and doc["metrics"]["coverage"]["area"] == pytest.approx(1.0)
     planned = load_mesh(ply.read_bytes(), "ply")  # the surface the plan refers to, exactly

@@ -8,9 +8,12 @@ turns about its gaze and counts the surface samples facing it that fall in its f
 takes the turn that frames the most where that is at least GAIN more than the world's up
 frames (and more than the samples' noise), and keeps the world's up elsewhere: where the
 surface fills the frame whichever way it is turned (a large face, a housing) the views keep
-one orientation and tile as a grid, and a part that lies inside the circle within the frame
-is not judged at all; where a long part runs across the frame, the image turns along it,
-and the count no longer depends on how the part lies in its file. A thin bar longer than
+one orientation and tile as a grid on a face whose normal is level (on a face looking up or
+down, +Z on the image of a tilted gaze points the way it tilts, so there the frames lie at
+every angle; levelling them was measured and not kept, docs/quality.md "Level frames"),
+and a part that lies inside the circle within the frame is not judged at all; where a long
+part runs across the frame, the image turns along it, and the count no longer depends on
+how the part lies in its file. A thin bar longer than
 the frame is framed along the image's diagonal, its longest line. Of the two rolls that
 frame the same, the one nearer the world's up is taken (images stay as upright as they
 can).

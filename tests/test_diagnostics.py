@@ -16,6 +16,7 @@ from vpp_core.plan.diagnostics import (
     WELL_SEEN_RAYS,
     _element_hint,
     _hint,
+    _size_hint,
     _tilt_hint,
     back_to_back,
     enclosed_faces,
@@ -227,12 +228,9 @@ def test_element_hint_when_big_faces_are_seen_by_a_sliver_of_rays_and_not_after_
     assert _element_hint(under, fine.area_mm2) is None
 
 
-def test_the_element_hint_states_a_share_of_the_area_the_candidates_reach():
-    """A 100 m cube at 0.18 mm: its 12 faces are each hit by a ray, and nearly all of their
-    area by none; the hint's share is of the faces the candidates reach (so at most 100 %),
-    not of the area in sampled patches (1 % of it here, which gave 164 525 %)."""
-    import re
-
+@pytest.fixture(scope="module")
+def huge_cube_hint():
+    """The hint of a plan of a 100 m cube at 0.18 mm (30 candidates, a 320 × 200 sensor)."""
     from vpp_core.plan.document import CandidateGenerator, PlanRequest, SolverSettings
     from vpp_core.plan.pipeline import plan
 
@@ -242,8 +240,29 @@ def test_the_element_hint_states_a_share_of_the_area_the_candidates_reach():
         candidates=CandidateGenerator(count=30),
         solver=SolverSettings(name="greedy", time_limit_s=10),
     )
-    doc = plan(part_from_arrays(box.vertices, box.faces), request)
-    hint = doc.diagnostics.hint or ""
-    share = re.search(r"\(([\d.]+)% of the area the candidates reach\)", hint)
-    assert share is not None, hint
+    return plan(part_from_arrays(box.vertices, box.faces), request).diagnostics.hint or ""
+
+
+def test_the_element_hint_states_a_share_of_the_area_the_candidates_reach(huge_cube_hint):
+    """A 100 m cube at 0.18 mm: its 12 faces are each hit by a ray, and nearly all of their
+    area by none; the hint's share is of the faces the candidates reach (so at most 100 %),
+    not of the area in sampled patches (1 % of it here, which gave 164 525 %)."""
+    import re
+
+    share = re.search(r"\(([\d.]+)% of the area the candidates reach\)", huge_cube_hint)
+    assert share is not None, huge_cube_hint
     assert 99.0 <= float(share.group(1)) <= 100.0
+
+
+def test_a_part_larger_than_its_candidates_can_frame_is_told_to_check_its_units(huge_cube_hint):
+    """6e10 mm² against 30 frames of 492 × 307 mm at the far end of the depth of field (700 mm):
+    the hint comes first and names the part's size, the ratio and --units."""
+    assert huge_cube_hint.startswith("the part (1e+05 × 1e+05 × 1e+05 mm, 6e+10 mm²) has ")
+    framed = 30 * 2 * 700 * np.tan(np.radians(38.7 / 2)) * 2 * 700 * np.tan(np.radians(24.75 / 2))
+    ratio = float(huge_cube_hint.split(" has ")[1].split(" times")[0])
+    assert ratio == pytest.approx(6e10 / framed, rel=5e-3)  # printed to 3 digits
+    assert "(492 × 307 mm each at 700 mm): check its units (--units" in huge_cube_hint
+    plate = trimesh.creation.box(extents=[2000.0, 1000.0, 5.0])  # 4.0e6 mm², 30 frames 4.5e6
+    part = part_from_arrays(plate.vertices, plate.faces)
+    assert _size_hint(part, Sensor(), 30) is None
+    assert _size_hint(part, Sensor(), 26) is not None  # 26 frames: 3.9e6 mm²

@@ -16,7 +16,10 @@
   footprints) that the plan counts as seen while its rays land on less than half of their
   area, estimated from each ray's footprint at the face centre. A face counts as seen when one
   ray lands on it (SPEC §3), so a long CAD facet on a hole wall is "seen" when a view grazes
-  its rim; `--max-face-area` splits such faces into elements (vpp_core.mesh.refine).
+  its rim; `--max-face-area` splits such faces into elements (vpp_core.mesh.refine);
+- size: a part whose area exceeds what all its candidates frame head-on at the far end of
+  the depth of field (a 100 m cube: its plan sees 0.06 % of it at points), most likely read
+  in the wrong units.
 """
 
 from __future__ import annotations
@@ -175,6 +178,7 @@ def diagnose(
         driven_views=len(driven),
         driven_area_mm2=driven_area,
         hint=_join(
+            _size_hint(part, sensor, len(views)),
             _element_hint(under, reached),
             _tilt_hint(len(forced), len(causes)) if normal_candidates else None,
             None if partial else _hint(len(driven), len(causes), driven_area, coverable),
@@ -336,6 +340,26 @@ def _tilt_hint(forced: int, views: int) -> str | None:
         f"normal (--tilt {SUGGESTED_TILT_DEG}, or candidates.tilt_deg): they see such faces "
         "from several poses (2-5x fewer views on machined parts), and reach more surface, "
         "which a strict cover must then cover too"
+    )
+
+
+def _size_hint(part: Part, sensor: Sensor, candidates: int) -> str | None:
+    """The hint when the part's counted area (mm²) exceeds what all its `candidates` frame
+    head-on at the far end of the depth of field, where a frame is largest: a part in the
+    wrong units (a file in mm read as m has a million times its area; a plan of it is
+    meaningless, every view a speck on one face), or too few candidates for its size."""
+    tx, ty = (math.tan(math.radians(a) / 2) for a in (sensor.fov_x_deg, sensor.fov_y_deg))
+    w, h = 2 * sensor.far_mm * tx, 2 * sensor.far_mm * ty
+    area, framed = float(part.areas[part.counted].sum()), candidates * w * h
+    if candidates <= 0 or area <= framed:
+        return None
+    size = " × ".join(f"{e:.4g}" for e in np.ptp(part.vertices, axis=0))
+    return (
+        f"the part ({size} mm, {area:.3g} mm²) has {area / framed:.3g} times the area its "
+        f"{candidates} candidates frame head-on at the far end of the depth of field "
+        f"({w:.0f} × {h:.0f} mm each at {sensor.far_mm:g} mm): "
+        "check its units (--units, or units at upload: a file in mm read as m has a million "
+        "times the area), or ask for more candidates"
     )
 
 

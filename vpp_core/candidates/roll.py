@@ -13,10 +13,9 @@ down, +Z on the image of a tilted gaze points the way it tilts, so there the fra
 every angle; levelling them was measured and not kept, docs/quality.md "Level frames"),
 and a part that lies inside the circle within the frame is not judged at all; where a long
 part runs across the frame, the image turns along it, and the count no longer depends on
-how the part lies in its file. A thin bar longer than
-the frame is framed along the image's diagonal, its longest line. Of the two rolls that
-frame the same, the one nearer the world's up is taken (images stay as upright as they
-can).
+how the part lies in its file. A thin bar longer than the frame is framed along the image's
+diagonal, its longest line. Of the two rolls that frame the same, the one nearer the world's
+up is taken (images stay as upright as they can).
 """
 
 from __future__ import annotations

@@ -130,6 +130,7 @@ def test_the_page_draws_the_plan_and_a_clicked_camera_shows_its_pose(live, brows
     summary = page.js("window.vppViewer.summary")
     assert summary["viewpoints"] == f"{k_views} of {len(doc['candidates'])} candidates"
     assert doc["solver"]["status"] in summary["solver"]
+    assert ("note" in summary) == bool((doc["diagnostics"] or {}).get("hint"))
     # the legend counts are the scene file's states
     _, arrays = unpack(client.get(f"/v1/plans/{plan}/scene").content)
     counts = np.bincount(arrays["state"], minlength=5).tolist()
@@ -195,9 +196,18 @@ def _partial_rows(browser: Any, plan_url: str, doc: dict[str, Any]) -> None:
         },
     }
 
+    hint = "the part (1e+05 mm) has 795 times the area <b>its</b> candidates frame & so on"
+    evil = '<img src=x onerror="window.pwned = 1">'
+    region = {"name": evil, "ignored": False, "faces": 1, "area_mm2": 5.0}
+    region |= {"resolution_mm": 0.1, "met_area": 1.0, "max_met_area": 1.0}
+
     def served(route: Any) -> None:
         response = route.fetch()
-        route.fulfill(response=response, json={**response.json(), "partial": partial})
+        served = response.json()
+        served["partial"] = partial
+        served["diagnostics"] = {**(served["diagnostics"] or {}), "hint": hint}
+        served["metrics"]["regions"] = [region]
+        route.fulfill(response=response, json=served)
 
     page = Page(browser, f"{plan_url}/view", before=lambda p: p.route(f"**{plan_url}", served))
     rows = page.js("Object.entries(window.vppViewer.summary)")
@@ -210,6 +220,14 @@ def _partial_rows(browser: Any, plan_url: str, doc: dict[str, Any]) -> None:
     )
     tip = page.page.locator("#metrics th", has_text="seen at points").get_attribute("title")
     assert tip is not None and "spread evenly by area" in tip
+    # the diagnostics' hint is the last row, numbers kept with their units; names and notes
+    # from requests and uploads are shown as text, never run as markup
+    assert names[-1] == "note"
+    note = page.page.locator("#metrics td").last.inner_text()
+    assert note == hint.replace("05 mm", "05\u00a0mm")
+    assert page.page.locator("#metrics th", has_text="region ").inner_text() == f"region {evil}"
+    assert page.page.locator("#metrics img, #metrics b").count() == 0
+    assert page.js("window.pwned") is None
     assert page.errors == []
 
 

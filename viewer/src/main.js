@@ -22,6 +22,8 @@ function status(text, error = false) {
 }
 
 const NB = '\u00a0'; // a number and its unit never part at a line end
+/** Text made safe inside HTML: region names and labels come from requests and uploads. */
+const esc = (t) => String(t).replace(/[&<>"']/g, (c) => `&#${c.charCodeAt(0)};`);
 const fmt = (x, d = 3) => (x === null || x === undefined ? '—' : Number(x).toFixed(d));
 const pct = (x) => `${(100 * x).toFixed(1)}${NB}%`;
 const mm = (x, d = 3) => `${fmt(x, d)}${NB}mm`;
@@ -43,6 +45,8 @@ const TIPS = {
     + 'within the incidence limit, nothing in front), next to the share any candidate sees; '
     + 'views the patch rows did not need but these points did are counted as added.',
   uncoverable: 'Faces that no candidate sees: no plan can cover them.',
+  note: 'What the plan\'s diagnostics say to change when something other than the part\'s '
+    + 'geometry drives it: its units, area elements, tilted candidates, a partial cover.',
 };
 
 const TERMINAL = ['succeeded', 'failed', 'canceled'];
@@ -167,11 +171,13 @@ function summary(doc) {
     const what = g.ignored
       ? `ignored: ${g.faces}${NB}faces, ${fmt(g.area_mm2, 1)}${NB}mm², not counted`
       : `r̄ = ${mm(g.resolution_mm, 2)}: met ${pct(g.met_area)} of ${fmt(g.area_mm2, 1)}${NB}mm² (max ${pct(g.max_met_area)})`;
-    rows.push([`region ${g.name}`, what]);
+    rows.push([`region ${esc(g.name)}`, what]);
   }
   if (doc.partial) rows.splice(5, 0, ['partial cover', `${pct(doc.partial.covered_fraction)} of coverable area (asked ${pct(doc.partial.min_coverage)})`]);
   const points = doc.partial?.points;
   if (points) rows.splice(6, 0, ['seen at points', seenAtPoints(points)]);
+  const hint = doc.diagnostics?.hint;
+  if (hint) rows.push(['note', esc(hint).replace(/(\d) (?=%|mm)/g, `$1${NB}`)]);
   const th = (k) => (TIPS[k] ? `<th title="${TIPS[k]}" class="tip">${k}</th>` : `<th>${k}</th>`);
   $('metrics').innerHTML = rows.map(([k, v]) => `<tr>${th(k)}<td>${v}</td></tr>`).join('');
   api.summary = Object.fromEntries(rows);

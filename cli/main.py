@@ -12,8 +12,10 @@ from typing import Any, NoReturn
 
 from pydantic import ValidationError
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
+from rich.text import Text
 
 from cli import STARTED
 from vpp_core.camera.sensor import make_sensor
@@ -371,17 +373,18 @@ def run_plan(args: argparse.Namespace) -> int:
             load_s=time.perf_counter() - STARTED,  # the budget counts from the command's start
             cell=cell,
         )
+    text = doc.model_dump_json(indent=1)
+    if args.output:  # before anything is printed: nothing printed can lose the plan
+        _write(args.output, text)
     console = Console()
     console.print(summary(doc))
     if doc.diagnostics and doc.diagnostics.hint:
-        console.print(f"[yellow]note:[/] {doc.diagnostics.hint}", highlight=False)
+        console.print(f"[yellow]note:[/] {escape(doc.diagnostics.hint)}", highlight=False)
     if doc.metrics.regions:
         console.print(regions_table(doc))
-    for warning in doc.regions.warnings if doc.regions else []:
-        console.print(f"[yellow]warning:[/] {warning}", highlight=False)
-    text = doc.model_dump_json(indent=1)
+    for warning in doc.regions.warnings if doc.regions else []:  # they quote region names
+        console.print(f"[yellow]warning:[/] {escape(warning)}", highlight=False)
     if args.output:
-        _write(args.output, text)
         print(f"plan written to {args.output}")
     if args.mesh_out:
         _write_bytes(args.mesh_out, part.ply())
@@ -467,7 +470,7 @@ def regions_table(doc: PlanDocument) -> Table:
         table.add_column(head, justify="right")
     for r in doc.metrics.regions:
         table.add_row(
-            r.name,
+            Text(r.name),  # a user's name, not rich markup
             "ignored" if r.ignored else f"{r.resolution_mm:g}",
             str(r.faces),
             f"{r.area_mm2:,.1f}",

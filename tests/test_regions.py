@@ -569,16 +569,21 @@ def test_cli_plans_with_regions_and_labels_and_refuses_bad_ones(tmp_path, capsys
     labels = tmp_path / "labels.json"
     labels.write_text(json.dumps([1] + [0] * (len(f) - 1)))
     regions = tmp_path / "regions.json"
-    regions.write_text(json.dumps([{"name": "one", "label": 1, "resolution_mm": 0.09}]))
+    one, none = "one [/x]", "[/y] none"  # names that are not rich markup, printed as they are
+    far = {"min": [1e3] * 3, "max": [1e3 + 1] * 3}
+    body = [{"name": one, "label": 1, "resolution_mm": 0.09}]
+    regions.write_text(json.dumps([*body, {"name": none, "box": far, "ignore": True}]))
     out = tmp_path / "plan.json"
     common = ("--candidates-file", views, "--profile", "paper", "-q")
     run = vpp_in(capsys, "plan", mesh, *common, "--regions", regions, "--labels", labels, "-o", out)
     assert run.returncode == 0, run.stderr
     doc = json.loads(out.read_text())
     by = {r["name"]: r for r in doc["metrics"]["regions"]}
-    assert by["one"]["faces"] == 1 and by["one"]["resolution_mm"] == 0.09
+    assert by[one]["faces"] == 1 and by[one]["resolution_mm"] == 0.09
     assert doc["regions"]["face_region"] == [0, 1, -1, len(f) - 1]
     assert "regions (each face against its own target)" in run.stdout
+    assert one in run.stdout and none in run.stdout  # in the table, and in the warning
+    assert any(none in w for w in doc["regions"]["warnings"])
     bad = [
         ([{"name": "x", "faces": [len(f)], "ignore": True}], "out of range"),
         ([{"name": "x", "label": 7, "ignore": True}], "unknown label 7"),

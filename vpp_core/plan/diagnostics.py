@@ -348,12 +348,13 @@ def _size_hint(part: Part, sensor: Sensor, candidates: int) -> str | None:
     head-on at the far end of the depth of field, where a frame is largest: a part in the
     wrong units (a file in mm read as m has a million times its area; a plan of it is
     meaningless, every view a speck on one face), or too few candidates for its size."""
-    tx, ty = (math.tan(math.radians(a) / 2) for a in (sensor.fov_x_deg, sensor.fov_y_deg))
-    w, h = 2 * sensor.far_mm * tx, 2 * sensor.far_mm * ty
-    area, framed = float(part.areas[part.counted].sum()), candidates * w * h
+    w = sensor.far_mm * sensor.width_px / sensor.fx  # the frame (mm) at the far limit
+    h = sensor.far_mm * sensor.height_px / sensor.fy
+    area, framed = part.area_mm2, candidates * w * h
     if candidates <= 0 or area <= framed:
         return None
-    size = " × ".join(f"{e:.4g}" for e in np.ptp(part.vertices, axis=0))
+    lo, hi = part.bounds
+    size = " × ".join(f"{e:.4g}" for e in hi - lo)
     return (
         f"the part ({size} mm, {area:.3g} mm²) has {area / framed:.3g} times the area its "
         f"{candidates} candidates frame head-on at the far end of the depth of field "

@@ -199,7 +199,11 @@ def test_min_coverage_plans_a_partial_cover_and_reports_it(tmp_path, capsys):
     )
     strict_doc = json.loads(strict.read_text())
     assert strict_doc["partial"] is None
-    assert len(doc["viewpoints"]) <= len(strict_doc["viewpoints"])
+    # the strict cover meets the partial cover's rows too, so the partial cover's bound is no
+    # higher; its views may be one more: the partial cover is then grown until 0.999 of the
+    # area is seen (docs/quality.md, stage 6), which the strict cover's views all do
+    assert doc["solver"]["bound"] <= len(strict_doc["viewpoints"])
+    assert len(doc["viewpoints"]) <= len(strict_doc["viewpoints"]) + 1
 
 
 def _small_sensor(tmp_path: Path) -> Path:

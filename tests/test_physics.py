@@ -164,3 +164,34 @@ def test_expected_ray_density_matches_the_traced_rays_per_area(tilt):
     normal = part.normals[:1]
     expected = Cameras(views, PAPER).ray_density(np.zeros((1, 3)), normal, np.zeros(1, int))
     assert traced == pytest.approx(expected[0], rel=0.02)
+
+
+def test_views_that_hold_a_patch_whole_cover_its_row_whatever_the_pixel_grid():
+    # a 61 mm plate of 6.1 mm square patches (two triangles each) under two head-on cameras
+    # at 410 mm (0.15 mm pixels, 40.7 pixels a patch side), 1.6 mm apart: each puts 40 or 41
+    # rows and columns of rays on a patch, so one may count 40² where the other counts 41²
+    # (3 % fewer) on a patch both frames hold whole. Both cover its row whole. A third camera
+    # whose frame's edge halves a column of patches covers half of their rows, and nothing
+    # of those beyond the edge
+    from vpp_core.cover.density import cover_model
+    from vpp_core.cover.patches import Patches
+
+    part = plate_part(side=61.0, n=10)
+    quads = np.tile(np.arange(100), 2)  # faces k and k + 100 make quad k (plate())
+    centres = np.zeros((100, 3))
+    np.add.at(centres, quads, part.vertices[part.faces].mean(axis=1) * part.areas[:, None] / 6.1**2)
+    normals = np.tile([0.0, 0.0, 1.0], (100, 1))
+    patches = Patches(quads, np.full(100, 6.1**2), 6.1, centres, normals)
+    frame = 410.0 * PAPER.width_px / PAPER.fx
+    views = look_down((0.37, 0.61, 410.0), (2.0, 1.3, 410.0), (3.05 - frame / 2, 0.0, 410.0))
+    r = trace_counts(part, PAPER, views).counts
+    rays = patches.sum_rows(r).toarray()
+    assert (rays[:, 0] != rays[:, 1]).sum() > 20 and rays[:, :2].min() <= 0.97 * rays.max()
+    res = PAPER.pixel_pitch_mm(410.0) * 1.2
+    args = (part.areas, part.counted, res, "density", patches, None, Cameras(views, PAPER))
+    model = cover_model(r, *args)
+    assert (model.faces[:100] == np.arange(100)).all()  # every patch is seen
+    s = model.matrix.toarray()[model.face_row[:100]]
+    assert (s[:, :2] == 1.0).all()
+    half, beyond = np.isclose(centres[:, 0], 3.05), centres[:, 0] > 6.1
+    assert s[half, 2] == pytest.approx(0.5, rel=0.05) and (s[beyond, 2] == 0).all()

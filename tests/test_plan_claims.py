@@ -115,11 +115,13 @@ def pinhole_share(
     rp: np.ndarray, ap: np.ndarray, centres: np.ndarray, normals: np.ndarray, c2w, sensor
 ) -> np.ndarray:
     """(P, N) share of each patch its rays sample: min(1, R / (ρ A)), ρ the pixels per mm² of
-    the patch's plane at its centre, from projecting a small square on it into the image."""
+    the patch's plane at its centre, from projecting a small square on it into the image;
+    the patch's largest share u where R falls short of u ρ A by at most 2 sqrt(ρ A) (a row of
+    pixels along each side)."""
     t1, t2 = tangents(np.asarray(normals, dtype=np.float64))
     h = 1e-3
     corners = centres[:, None, :] + h * np.stack([np.zeros_like(t1), t1, t2], axis=1)  # (P,3,3)
-    out = np.ones_like(rp)
+    out, whole = np.ones(rp.shape), np.zeros(rp.shape)
     for j, m in enumerate(c2w):
         p = np.flatnonzero(rp[:, j] > 0)
         cam = (corners[p] - m[:3, 3]) @ m[:3, :3]  # (p, 3 corners, xyz in the camera frame)
@@ -127,7 +129,10 @@ def pinhole_share(
         e1, e2 = px[:, 1] - px[:, 0], px[:, 2] - px[:, 0]
         rho = np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]) / h**2
         out[p, j] = np.minimum(1.0, rp[p, j] / (rho * ap[p]))
-    return out
+        whole[p, j] = rho * ap[p]
+    best = np.where(rp > 0, out, 0.0).max(axis=1, keepdims=True)
+    grid = (rp > 0) & (rp >= best * whole - 2 * np.sqrt(whole))  # as much but for the grid
+    return np.where(grid, best, out)
 
 
 @pytest.fixture(scope="module")

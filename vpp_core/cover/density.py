@@ -16,7 +16,9 @@ max_j f_pj (all of it where one view sees it whole), and a view covers its part 
 S_pj = min(1, f_pj / u_p · min(1, r̄ sqrt(R_pj / (f_pj A_p)))). A view that sees a third of a
 patch that another view sees whole, or of a large CAD facet that is a patch of its own,
 covers a third of its row, however fine its pixels there (f = u = 1 gives SPEC §3's S;
-docs/quality.md, stage 3b).
+docs/quality.md, stage 3b). A view that samples as much as the best one but for the pixel
+grid (R_pj ≥ u_p N - 2 sqrt(N), N = ρ_pj A_p: a row of pixels along each side) covers the row
+whole: the grid's aliasing does not decide between views.
 """
 
 from __future__ import annotations
@@ -38,6 +40,11 @@ STRAY_RAYS = 3
 patch holds about 25 samples at the target density; docs/quality.md has the measurement)."""
 MET_RTOL = 1e-9
 """Relative slack on δ ≥ δ̄: absorbs float rounding of sums, far below any physical effect."""
+GRID = 2.0
+"""A view whose rays on a patch fall short of what the patch's best view samples of it (u_p N,
+N the rays its pixels would put on the whole patch) by at most GRID · sqrt(N) samples as much:
+the pixel grid gains or drops up to a row of pixels along each side of a patch (a square s
+pixels a side holds (s - 1)² to (s + 1)² pixel centres); docs/quality.md, stage 3b."""
 MIN_DEPTH_MM = 1e-6
 """Least depth (mm) a patch centre is given in Cameras.ray_density: a patch larger than the
 stand-off (a part many metres across, its elements capped at MAX_ELEMENTS) can have its
@@ -126,12 +133,15 @@ class Cameras:
 def seen_share(counts: sp.csr_array, patches: Patches, cameras: Cameras) -> np.ndarray:
     """(nnz,) share f_pj of patch p that view j samples, for each entry of the patch R
     `counts` (P, N): min(1, R_pj / (ρ_pj A_p)), ρ_pj the view's ray density on the patch's
-    plane (Cameras.ray_density at its centre and mean normal)."""
+    plane (Cameras.ray_density at its centre and mean normal); the patch's largest share u_p
+    where R_pj falls short of u_p N by at most GRID · sqrt(N) rays (N = ρ_pj A_p)."""
     rows = np.repeat(np.arange(counts.shape[0]), np.diff(counts.indptr))
     rho = cameras.ray_density(patches.centres[rows], patches.normals[rows], counts.indices)
     whole = rho * patches.areas[rows]
-    share = np.divide(counts.data, whole, out=np.ones(len(rows)), where=whole > 0)
-    return np.asarray(np.minimum(share, 1.0))
+    share = np.minimum(np.divide(counts.data, whole, out=np.ones(len(rows)), where=whole > 0), 1)
+    best = np.repeat(reach(counts.indptr, share), np.diff(counts.indptr))
+    grid = counts.data >= best * whole - GRID * np.sqrt(whole)  # as much, but for the grid
+    return np.asarray(np.where(grid, best, share))
 
 
 def density_sum(r: sp.csc_array, areas: np.ndarray) -> np.ndarray:

@@ -241,6 +241,13 @@ def _plan_options(p: argparse.ArgumentParser) -> None:
         "(default profile), world keeps world +Z as image up (paper)",
     )
     p.add_argument(
+        "--tiles",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="also lay head-on cameras side by side over each flat face no frame holds whole "
+        "(default profile: on; paper: off)",
+    )
+    p.add_argument(
         "--standoff",
         type=float,
         metavar="MM",
@@ -578,6 +585,7 @@ def _request(args: argparse.Namespace) -> PlanRequest:
                 adaptive=args.adaptive,
                 sphere=args.sphere,
                 roll=args.roll,
+                tiles=args.tiles,
             )
         )
         return PlanRequest(

@@ -144,3 +144,69 @@ def test_tilted_candidates_see_hole_and_pocket_walls_from_more_than_one_pose():
         seen_by = np.diff(trace_counts(part, SENSOR, views).counts.tocsr().indptr)
         single[deg] = int((seen_by == 1).sum())
     assert single[0.0] > 50 and single[30.0] < single[0.0] / 5, single
+
+
+def _box(*extents: float):
+    """A box part of `extents` mm centred at the origin."""
+    mesh = trimesh.creation.box(list(extents))
+    return part_from_arrays(np.asarray(mesh.vertices), np.asarray(mesh.faces))
+
+
+def _tiles(part, **kw):
+    from vpp_core.candidates.generator import STANDOFF_MARGIN, _surface_tree
+    from vpp_core.candidates.tiles import tiles
+    from vpp_core.trace.raytrace import make_backend
+
+    args = (part, SENSOR, 410.0, make_backend(part), _surface_tree(part), 20.0)
+    return tiles(*args, STANDOFF_MARGIN**2, **kw)
+
+
+def test_tiles_lay_head_on_frames_side_by_side_over_a_large_flat_face():
+    # a 1 200 × 800 × 5 mm plate: each 288 × 180 mm frame at 410 mm looks straight at a face,
+    # and every point of the top face lies in the frame of a camera above it; the 5 mm edges
+    # 1 200 mm long are tiled too (longer than two frames stretched 1.44 times: 829 mm), the
+    # 800 mm ones are not
+    views = _tiles(_box(1200.0, 800.0, 5.0))
+    normals = np.array([[0, 0, 1], [0, 0, -1], [0, 1, 0], [0, -1, 0], [1, 0, 0], [-1, 0, 0]])
+    facing = np.abs(views.gazes @ normals.T).max(axis=1)
+    assert len(views) > 0 and np.allclose(facing, 1.0)  # head-on
+    top = views.take(np.flatnonzero(views.gazes[:, 2] < -0.99))
+    side = np.abs(views.gazes[:, 1]) > 0.99
+    assert np.allclose(top.positions[:, 2], 2.5 + 410.0)
+    assert len(top) == (len(views) - side.sum()) // 2  # top, bottom and the long edges
+    assert not (np.abs(views.gazes[:, 0]) > 0.99).any()  # the 800 mm edges get none
+    rng = np.random.default_rng(1)
+    points = np.column_stack([rng.uniform(-600, 600, 5000), rng.uniform(-400, 400, 5000)])
+    on_top = np.column_stack([points, np.full(5000, 2.5)])
+    cam = np.einsum("kji,pkj->pki", top.rotations(), on_top[:, None] - top.positions)
+    u = SENSOR.fx * cam[..., 0] / cam[..., 2] + SENSOR.width_px / 2
+    v = SENSOR.fy * cam[..., 1] / cam[..., 2] + SENSOR.height_px / 2
+    inside = (u >= 0) & (u < SENSOR.width_px) & (v >= 0) & (v < SENSOR.height_px)
+    assert inside.any(axis=1).all()  # the frames tile the face
+    frame = (410.0 * SENSOR.width_px / SENSOR.fx) * (410.0 * SENSOR.height_px / SENSOR.fy)
+    assert len(top) * frame < 1.5 * 1200 * 800  # side by side, not piled up
+
+
+def test_faces_two_tilted_frames_span_get_no_tiles_and_tiles_stay_clear_and_allowed():
+    assert len(_tiles(_box(300.0, 200.0, 3.0))) == 0  # tilted views cover it as well
+    assert len(_tiles(_box(60.0, 60.0, 40.0))) == 0
+    part = _box(1200.0, 800.0, 5.0)
+    above = _tiles(part, allowed=lambda cams: cams[:, 2] > 0)
+    assert len(above) > 0 and (above.positions[:, 2] > 0).all()
+    assert len(_tiles(part, limit=7)) == 7  # the largest faces' first: the top or bottom
+    assert (np.abs(_tiles(part, limit=7).gazes[:, 2]) > 0.99).all()
+
+
+def test_generated_candidates_end_with_the_tiles_and_only_the_default_profile_asks():
+    from vpp_core.plan.document import CandidateGenerator, PlanRequest
+
+    part = _box(1200.0, 800.0, 5.0)
+    settings = GeneratorSettings(count=60, standoff_mm=410.0, tiles=True)
+    gen = generate(part, SENSOR, settings)
+    plain = generate(part, SENSOR, GeneratorSettings(count=60, standoff_mm=410.0))
+    assert gen.tiles > 0 and plain.tiles == 0 and len(gen.views) == len(plain.views) + gen.tiles
+    assert np.allclose(gen.views.positions[: len(plain.views)], plain.views.positions)
+    assert gen.tiles <= 60 // 4
+    fill = {"candidates": CandidateGenerator()}
+    assert PlanRequest(**fill).candidates.tiles is True
+    assert PlanRequest(profile="paper", **fill).candidates.tiles is False

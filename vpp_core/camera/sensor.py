@@ -67,6 +67,12 @@ class Sensor(BaseModel):
         return (self.height_px / 2) / math.tan(math.radians(self.fov_y_deg) / 2)
 
     @property
+    def half_tangents(self) -> tuple[float, float]:
+        """tan of half the field of view along x and y: the frame's half-width and
+        half-height per mm of depth."""
+        return self.width_px / (2 * self.fx), self.height_px / (2 * self.fy)
+
+    @property
     def n_pixels(self) -> int:
         """Rays per view."""
         return self.width_px * self.height_px

@@ -11,6 +11,8 @@
    direction serves is dropped.
 4. With `fit_roll`, turn each camera about its gaze where that frames more of the surface
    (`vpp_core.candidates.roll`); else SPEC §1's default up.
+5. With `tiles`, add head-on cameras laid side by side over each flat face that no frame
+   holds whole (`vpp_core.candidates.tiles`), after the others.
 Seeded and deterministic.
 
 The directions: with `tilt_deg` > 0, TILT_TRIES directions drawn uniformly by solid angle
@@ -38,6 +40,7 @@ from scipy.spatial import cKDTree
 from vpp_core.camera.pose import Viewpoints, make_viewpoints
 from vpp_core.camera.sensor import Sensor
 from vpp_core.candidates.roll import fitted, surface_samples
+from vpp_core.candidates.tiles import tiles
 from vpp_core.cell.reach import Allowed
 from vpp_core.errors import VppError
 from vpp_core.mesh.part import Part
@@ -56,6 +59,9 @@ RETRY_TRIES = 6
 """Directions within retry_tilt_deg tried for a sample no earlier direction served."""
 STANDOFF_MARGIN = 1.2
 """Target resolution / pixel footprint at the default stand-off (head-on density margin)."""
+TILE_SHARE = 4
+"""Head-on tiles (settings.tiles) are at most the candidate count over this, the largest
+flat faces' first."""
 DOF_MARGIN = 0.1
 """Share of the depth of field kept free in front of the near limit at the stand-off."""
 
@@ -72,6 +78,7 @@ class GeneratorSettings:
     retry_tilt_deg: float = 0.0  # wider cone tried before a sample is dropped (0: none)
     standoff_mm: float | None = None  # camera-sample distance (None: the working distance)
     fit_roll: bool = False  # turned where that frames more (vpp_core.candidates.roll)
+    tiles: bool = False  # head-on cameras tiling large flat faces too (candidates.tiles)
 
 
 @dataclass(frozen=True)
@@ -83,20 +90,16 @@ class GeneratedCandidates:
     planning_faces: int
     dropped: int
     standoff_mm: float
+    tiles: int = 0  # of views, the last ones: head-on tiles of large flat faces
 
 
 def standoff_for(sensor: Sensor, resolution_mm: float) -> float:
     """Stand-off (mm) at which a pixel's footprint is resolution / STANDOFF_MARGIN, within
     [near + DOF_MARGIN · depth of field, working distance]."""
-    per_mm = max(sensor.pixel_pitch_mm(1.0), _pitch_y(sensor))
+    per_mm = max(1 / sensor.fx, 1 / sensor.fy)  # a pixel's footprint per mm of depth
     wanted = resolution_mm / (STANDOFF_MARGIN * per_mm)
     nearest = sensor.near_mm + DOF_MARGIN * (sensor.far_mm - sensor.near_mm)
     return float(min(sensor.working_distance, max(nearest, wanted)))
-
-
-def _pitch_y(sensor: Sensor) -> float:
-    """Footprint of one pixel along y at depth 1 mm (mm)."""
-    return float(2 * np.tan(np.radians(sensor.fov_y_deg) / 2) / sensor.height_px)
 
 
 def generate(
@@ -128,12 +131,21 @@ def generate(
     views = make_viewpoints(positions[keep], gazes[keep])
     if settings.fit_roll:
         views = fitted(views, sensor, surface_samples(part), standoff)
+    laid = make_viewpoints(np.zeros((0, 3)), np.zeros((0, 3)))
+    if settings.tiles:
+        tree = _surface_tree(part)
+        limit = settings.count // TILE_SHARE
+        stretch = STANDOFF_MARGIN**2  # a tilted frame's reach at the default stand-off
+        laid = tiles(
+            part, sensor, standoff, backend, tree, settings.clearance_mm, stretch, allowed, limit
+        )
     return GeneratedCandidates(
-        views=views,
+        views=views.then(laid),
         spacing_mm=spacing,
         planning_faces=len(planning.faces),
         dropped=int((~keep).sum()),
         standoff_mm=standoff,
+        tiles=len(laid),
     )
 
 

@@ -64,7 +64,7 @@ def fitted(
     if not len(views) or sensor.width_px == sensor.height_px:
         return views
     depth = np.broadcast_to(np.asarray(depth_mm, dtype=np.float64), (len(views),))
-    half = np.tan(np.radians([sensor.fov_x_deg, sensor.fov_y_deg]) / 2)
+    half = np.array(sensor.half_tangents)
     radius = REACH * depth * float(np.hypot(*half))
     points, normals = samples
     rot, tree = views.rotations(), cKDTree(points)

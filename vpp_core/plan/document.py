@@ -30,6 +30,7 @@ PROFILES: dict[str, dict[str, object]] = {
         "adaptive": True,
         "sphere": 200,
         "roll": "fitted",
+        "tiles": True,
     },
     "paper": {
         "tilt_deg": 0.0,
@@ -40,6 +41,7 @@ PROFILES: dict[str, dict[str, object]] = {
         "adaptive": False,
         "sphere": 0,
         "roll": "world",
+        "tiles": False,
     },
 }
 """What each profile fills in where a request leaves a field out (docs/quality.md): `default`,
@@ -142,6 +144,13 @@ class CandidateGenerator(_Strict):
         "so that a long part gets as few views whichever way it lies in its file; `world` "
         "keeps the default up (world +Z on the image plane); default: the profile's (fitted; "
         "paper: world)",
+    )
+    tiles: bool | None = Field(
+        None,
+        description="also lay head-on cameras side by side over each flat face that no frame "
+        "holds whole, in one orientation (at most a quarter of `count`, the largest faces "
+        "first), so that a large flat face is covered by frames that tile it; default: the "
+        "profile's (on; paper: off)",
     )
 
 
@@ -251,6 +260,7 @@ class PlanRequest(_Strict):
                 "adaptive": chosen["adaptive"] if spec.adaptive is None else spec.adaptive,
                 "sphere": chosen["sphere"] if spec.sphere is None else spec.sphere,
                 "roll": chosen["roll"] if spec.roll is None else spec.roll,
+                "tiles": chosen["tiles"] if spec.tiles is None else spec.tiles,
             }
             self.candidates = spec.model_copy(update=update)
         return self
@@ -310,6 +320,9 @@ class CandidateInfo(BaseModel):
     standoff_mm: float | None = None
     roll: Literal["fitted", "world"] | None = None
     """How the cameras' roll was chosen (CandidateGenerator.roll)."""
+    tiles: int = 0
+    """Of the generated candidates, the head-on cameras tiling large flat faces
+    (CandidateGenerator.tiles); their ids follow the other generated ones."""
     sphere: int = 0
     """View-sphere candidates that joined the pool: they sample surface no generated one
     does (their ids follow the generated ones)."""

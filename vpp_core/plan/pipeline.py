@@ -150,6 +150,7 @@ def candidates_for(
             spec.retry_tilt_deg or 0.0,
             spec.standoff_mm,
             spec.roll == "fitted",
+            bool(spec.tiles),
         )
         table = table_candidates(
             part,
@@ -172,6 +173,7 @@ def candidates_for(
             retry_tilt_deg=spec.retry_tilt_deg,
             standoff_mm=gen.standoff_mm,
             roll=spec.roll,
+            tiles=gen.tiles,
         )
         return reachable_candidates(part, cell, gen.views, info)  # the robot's, turned
     n = len(spec.viewpoints)

@@ -375,7 +375,7 @@ def _original_faces(part: Part, mesh: Any) -> np.ndarray:
 def _frusta(doc: PlanDocument) -> list[tuple[np.ndarray, np.ndarray]]:
     """Line segments of each selected camera's frustum between its near and far planes."""
     sensor, lines = doc.sensor, []
-    tx, ty = np.tan(np.radians(sensor.fov_x_deg) / 2), np.tan(np.radians(sensor.fov_y_deg) / 2)
+    tx, ty = sensor.half_tangents
     corners = np.array([[-tx, -ty, 1], [tx, -ty, 1], [tx, ty, 1], [-tx, ty, 1]])
     for vp in doc.viewpoints:
         c2w = np.asarray(vp.camera_to_world)

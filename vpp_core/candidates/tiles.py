@@ -1,0 +1,196 @@
+"""Head-on cameras that tile a part's large flat faces, beside the generated candidates.
+
+A flat face many frames across is covered with the fewest views by frames laid side by side,
+head-on, in one orientation. The generated candidates aim at spaced samples with tilted gazes
+and fitted rolls, so their frames lie on such a face at every offset and angle, and the cover
+cannot assemble a tiling from them (a 2 000 × 1 000 mm panel: 139 views; with these tiles in
+the pool, 112; docs/quality.md, stage 2c).
+
+Each facet (trimesh's groups of coplanar adjacent faces, and the lone faces) longer than two
+frames at the stand-off, each stretched as far as a tilted gaze still meets the target
+(`stretch`: where a head-on pixel is r̄ / m, a gaze at θ meets r̄ up to cos θ = 1 / m², on a
+frame 1 / cos θ = m² as long; 1.44 at the default stand-off), gets a grid of cameras over the
+smallest rectangle around it in its plane (`trimesh.bounds.oriented_bounds_2D`): frames of
+the sensor's size at the stand-off, neighbours overlapping by OVERLAP, in whichever of the two
+orientations takes fewer, spread evenly over the rectangle; one camera per grid cell whose
+frame holds some of the facet, on the side from which a line reaches the facet first,
+`clearance_mm` away from the part and where `allowed` lets it be. A shorter face is covered as
+well by the tilted candidates, and tiles there lead the cover's greedy start astray (a
+300 × 200 mm plate: 8 views with tiles, 6 without).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import trimesh
+from scipy.spatial import cKDTree
+
+from vpp_core.camera.pose import Viewpoints, make_viewpoints
+from vpp_core.camera.sensor import Sensor
+from vpp_core.cell.reach import Allowed
+from vpp_core.mesh.part import Part
+from vpp_core.trace.rays import RayBackend
+
+OVERLAP = 0.05
+"""Share of a frame's width (and height) that neighbouring tiles overlap."""
+SAMPLES_PER_FRAME = 400
+"""Points sampled on a facet per frame of its area, to tell which cells hold some of it."""
+PROBES = 8
+"""Points of a cell tried for a clear line of sight from its camera."""
+
+
+@dataclass(frozen=True)
+class Facet:
+    """A flat face of the part: its faces' ids, unit outward normal, area-weighted centre
+    (mm) and the in-plane unit axes (a, b) of the smallest rectangle around it, extents (mm)
+    along them and that rectangle's centre (mm)."""
+
+    faces: np.ndarray
+    normal: np.ndarray
+    axes: tuple[np.ndarray, np.ndarray]
+    extents: tuple[float, float]
+    centre: np.ndarray
+
+
+def facets(mesh: trimesh.Trimesh, longer_mm: float) -> list[np.ndarray]:
+    """Face ids of each group of coplanar adjacent faces (trimesh's facets), then of each
+    face in none as a group of its own, whose corners span more than `longer_mm` (the
+    diagonal of their box: a facet no longer fits no frame)."""
+    groups = [np.asarray(f, dtype=np.int64) for f in mesh.facets]
+    alone = np.ones(len(mesh.faces), dtype=bool)
+    for f in groups:
+        alone[f] = False
+    tri = mesh.triangles
+    span = np.linalg.norm(tri.max(axis=1) - tri.min(axis=1), axis=1)
+    long = [f for f in groups if _span(mesh.vertices[mesh.faces[f]]) > longer_mm]
+    return long + [np.array([i]) for i in np.flatnonzero(alone & (span > longer_mm))]
+
+
+def _span(corners: np.ndarray) -> float:
+    """The diagonal (mm) of the box around (..., 3) points."""
+    flat = corners.reshape(-1, 3)
+    return float(np.linalg.norm(flat.max(axis=0) - flat.min(axis=0)))
+
+
+def facet(mesh: trimesh.Trimesh, faces: np.ndarray) -> Facet:
+    """The Facet of the coplanar `faces` of `mesh`."""
+    area = mesh.area_faces[faces]
+    normal = mesh.face_normals[faces].T @ area
+    normal /= np.linalg.norm(normal)
+    corners = mesh.vertices[np.unique(mesh.faces[faces])]
+    origin = corners.mean(axis=0)
+    u = np.cross(normal, [1.0, 0.0, 0.0] if abs(normal[0]) < 0.9 else [0.0, 1.0, 0.0])
+    u /= np.linalg.norm(u)
+    v = np.cross(normal, u)
+    flat = (corners - origin) @ np.stack([u, v], axis=1)
+    to_rect, extents = trimesh.bounds.oriented_bounds_2D(flat)  # type: ignore[no-untyped-call]
+    rot = np.linalg.inv(to_rect)  # rectangle frame -> (u, v) plane
+    a = rot[0, 0] * u + rot[1, 0] * v
+    b = rot[0, 1] * u + rot[1, 1] * v
+    centre = origin + rot[0, 2] * u + rot[1, 2] * v
+    return Facet(faces, normal, (a, b), (float(extents[0]), float(extents[1])), centre)
+
+
+def grid(extents: tuple[float, float], frame: tuple[float, float]) -> tuple[int, int, bool]:
+    """(cells along a, cells along b, whether the frame's width lies along b) tiling a
+    rectangle of `extents` (mm) with frames (width, height) mm overlapping by OVERLAP."""
+    w, h = (f * (1 - OVERLAP) for f in frame)
+    along = (math.ceil(extents[0] / w), math.ceil(extents[1] / h))
+    across = (math.ceil(extents[0] / h), math.ceil(extents[1] / w))
+    if across[0] * across[1] < along[0] * along[1]:
+        return max(across[0], 1), max(across[1], 1), True
+    return max(along[0], 1), max(along[1], 1), False
+
+
+def tiles(
+    part: Part,
+    sensor: Sensor,
+    standoff_mm: float,
+    backend: RayBackend,
+    clearance: cKDTree,
+    clearance_mm: float,
+    stretch: float,
+    allowed: Allowed | None = None,
+    limit: int | None = None,
+) -> Viewpoints:
+    """Head-on cameras at `standoff_mm` tiling each facet of the part longer than two frames
+    `stretch`ed along their width (module docstring), largest facets first, at most `limit`
+    of them; `clearance` a KD-tree of points on the part for the `clearance_mm` test."""
+    mesh = part.trimesh()
+    frame = (standoff_mm * sensor.width_px / sensor.fx, standoff_mm * sensor.height_px / sensor.fy)
+    rng = np.random.default_rng(0)
+    found: list[tuple[float, np.ndarray, np.ndarray, np.ndarray]] = []
+    for faces in facets(mesh, 2 * stretch * max(frame)):
+        f = facet(mesh, faces[part.counted[faces]]) if part.counted[faces].any() else None
+        if f is None or _fits(f.extents, frame, stretch):
+            continue
+        points = _samples(mesh, f, frame, rng)
+        for cam, gaze, up in _cells(f, frame, standoff_mm, points, backend):
+            if clearance.query(cam)[0] >= clearance_mm and (
+                allowed is None or allowed(cam[None])[0]
+            ):
+                found.append((-float(mesh.area_faces[f.faces].sum()), cam, gaze, up))
+    found.sort(key=lambda t: t[0])
+    found = found[:limit] if limit is not None else found
+    if not found:
+        return make_viewpoints(np.zeros((0, 3)), np.zeros((0, 3)))
+    _, cams, gazes, ups = zip(*found, strict=True)
+    return make_viewpoints(np.array(cams), np.array(gazes), np.array(ups))
+
+
+def _fits(extents: tuple[float, float], frame: tuple[float, float], stretch: float) -> bool:
+    """Whether two frames `stretch`ed along their width span a rectangle of `extents`."""
+    return max(extents) <= 2 * stretch * max(frame)
+
+
+def _samples(
+    mesh: trimesh.Trimesh, f: Facet, frame: tuple[float, float], rng: np.random.Generator
+) -> np.ndarray:
+    """(k, 3) points on the facet, SAMPLES_PER_FRAME per frame of its area, and its corners."""
+    sub = trimesh.Trimesh(mesh.vertices, mesh.faces[f.faces], process=False)
+    count = max(int(SAMPLES_PER_FRAME * sub.area / (frame[0] * frame[1])), SAMPLES_PER_FRAME)
+    points, _ = trimesh.sample.sample_surface(sub, count, seed=rng)
+    return np.vstack([points, sub.vertices[np.unique(sub.faces)]])
+
+
+def _cells(
+    f: Facet,
+    frame: tuple[float, float],
+    standoff: float,
+    points: np.ndarray,
+    backend: RayBackend,
+) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """(camera, gaze, up) of each grid cell over the facet whose frame holds some of
+    `points` (on the facet) with a clear line of sight to one of them from its camera."""
+    na, nb, swap = grid(f.extents, frame)
+    width, height = (frame[1], frame[0]) if swap else frame
+    a, b = f.axes
+    xy = (points - f.centre) @ np.stack([a, b], axis=1)
+    up = a if swap else b  # the image's x (its width) along the other axis
+    out = []
+    for i in range(na):
+        for j in range(nb):
+            x = (i + 0.5) / na * f.extents[0] - f.extents[0] / 2
+            y = (j + 0.5) / nb * f.extents[1] - f.extents[1] / 2
+            inside = (np.abs(xy[:, 0] - x) <= width / 2) & (np.abs(xy[:, 1] - y) <= height / 2)
+            if not inside.any():
+                continue
+            target = f.centre + x * a + y * b
+            probes = points[np.flatnonzero(inside)[:: max(1, int(inside.sum()) // PROBES)]]
+            for side in (1.0, -1.0):
+                cam = target + side * standoff * f.normal
+                if _sees(backend, cam, probes):
+                    out.append((cam, -side * f.normal, up))
+                    break
+    return out
+
+
+def _sees(backend: RayBackend, cam: np.ndarray, probes: np.ndarray) -> bool:
+    """Whether a straight line from `cam` (3,) mm first meets the part at one of `probes`."""
+    d = probes - cam
+    dist = np.linalg.norm(d, axis=1)
+    _, t = backend.first_hits(cam, (d / dist[:, None]).astype(np.float32), float(dist.max() * 1.01))
+    return bool((np.abs(t - dist) <= 1e-4 * dist + 1e-3).any())

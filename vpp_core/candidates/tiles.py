@@ -37,16 +37,16 @@ from vpp_core.trace.rays import RayBackend
 OVERLAP = 0.05
 """Share of a frame's width (and height) that neighbouring tiles overlap."""
 SAMPLES_PER_FRAME = 400
-"""Points sampled on a facet per frame of its area, to tell which cells hold some of it."""
+"""Points sampled on a facet per cell of its grid, to tell which cells hold some of it."""
 PROBES = 8
 """Points of a cell tried for a clear line of sight from its camera."""
 
 
 @dataclass(frozen=True)
 class Facet:
-    """A flat face of the part: its faces' ids, unit outward normal, area-weighted centre
-    (mm) and the in-plane unit axes (a, b) of the smallest rectangle around it, extents (mm)
-    along them and that rectangle's centre (mm)."""
+    """A flat face of the part: its faces' ids, their area-weighted unit normal, and the
+    smallest rectangle around it in its plane: unit axes (a, b), extents along them (mm) and
+    centre (mm)."""
 
     faces: np.ndarray
     normal: np.ndarray
@@ -58,7 +58,7 @@ class Facet:
 def facets(mesh: trimesh.Trimesh, longer_mm: float) -> list[np.ndarray]:
     """Face ids of each group of coplanar adjacent faces (trimesh's facets), then of each
     face in none as a group of its own, whose corners span more than `longer_mm` (the
-    diagonal of their box: a facet no longer fits no frame)."""
+    diagonal of their box, never shorter than the facet)."""
     groups = [np.asarray(f, dtype=np.int64) for f in mesh.facets]
     alone = np.ones(len(mesh.faces), dtype=bool)
     for f in groups:
@@ -118,27 +118,42 @@ def tiles(
 ) -> Viewpoints:
     """Head-on cameras at `standoff_mm` tiling each facet of the part longer than two frames
     `stretch`ed along their width (module docstring), largest facets first, at most `limit`
-    of them; `clearance` a KD-tree of points on the part for the `clearance_mm` test."""
+    cameras (a facet whose grid has more cells than are left gets none: a face a hundred
+    metres across is not sampled cell by cell); `clearance` a KD-tree of points on the part
+    for the `clearance_mm` test."""
     mesh = part.trimesh()
     frame = (standoff_mm * sensor.width_px / sensor.fx, standoff_mm * sensor.height_px / sensor.fy)
     rng = np.random.default_rng(0)
-    found: list[tuple[float, np.ndarray, np.ndarray, np.ndarray]] = []
-    for faces in facets(mesh, 2 * stretch * max(frame)):
-        f = facet(mesh, faces[part.counted[faces]]) if part.counted[faces].any() else None
-        if f is None or _fits(f.extents, frame, stretch):
+    left = math.inf if limit is None else limit
+    found: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+    for f in _large(part, mesh, frame, stretch):
+        na, nb, _ = grid(f.extents, frame)
+        if na * nb > left:  # a face is tiled whole or not at all
             continue
-        points = _samples(mesh, f, frame, rng)
+        points = _samples(mesh, f, na * nb, rng)
         for cam, gaze, up in _cells(f, frame, standoff_mm, points, backend):
             if clearance.query(cam)[0] >= clearance_mm and (
                 allowed is None or allowed(cam[None])[0]
             ):
-                found.append((-float(mesh.area_faces[f.faces].sum()), cam, gaze, up))
-    found.sort(key=lambda t: t[0])
-    found = found[:limit] if limit is not None else found
+                found.append((cam, gaze, up))
+                left -= 1
     if not found:
         return make_viewpoints(np.zeros((0, 3)), np.zeros((0, 3)))
-    _, cams, gazes, ups = zip(*found, strict=True)
+    cams, gazes, ups = zip(*found, strict=True)
     return make_viewpoints(np.array(cams), np.array(gazes), np.array(ups))
+
+
+def _large(
+    part: Part, mesh: trimesh.Trimesh, frame: tuple[float, float], stretch: float
+) -> list[Facet]:
+    """The part's facets of counted faces longer than two frames `stretch`ed along their
+    width, the largest (by area) first."""
+    out = []
+    for faces in facets(mesh, 2 * stretch * max(frame)):
+        counted = faces[part.counted[faces]]
+        if len(counted) and not _fits((f := facet(mesh, counted)).extents, frame, stretch):
+            out.append(f)
+    return sorted(out, key=lambda f: -float(mesh.area_faces[f.faces].sum()))
 
 
 def _fits(extents: tuple[float, float], frame: tuple[float, float], stretch: float) -> bool:
@@ -146,13 +161,10 @@ def _fits(extents: tuple[float, float], frame: tuple[float, float], stretch: flo
     return max(extents) <= 2 * stretch * max(frame)
 
 
-def _samples(
-    mesh: trimesh.Trimesh, f: Facet, frame: tuple[float, float], rng: np.random.Generator
-) -> np.ndarray:
-    """(k, 3) points on the facet, SAMPLES_PER_FRAME per frame of its area, and its corners."""
+def _samples(mesh: trimesh.Trimesh, f: Facet, cells: int, rng: np.random.Generator) -> np.ndarray:
+    """(k, 3) points on the facet, SAMPLES_PER_FRAME per cell of its grid, and its corners."""
     sub = trimesh.Trimesh(mesh.vertices, mesh.faces[f.faces], process=False)
-    count = max(int(SAMPLES_PER_FRAME * sub.area / (frame[0] * frame[1])), SAMPLES_PER_FRAME)
-    points, _ = trimesh.sample.sample_surface(sub, count, seed=rng)
+    points, _ = trimesh.sample.sample_surface(sub, SAMPLES_PER_FRAME * cells, seed=rng)
     return np.vstack([points, sub.vertices[np.unique(sub.faces)]])
 
 

@@ -157,7 +157,7 @@ def _tiles(part, **kw):
     from vpp_core.candidates.tiles import tiles
     from vpp_core.trace.raytrace import make_backend
 
-    args = (part, SENSOR, 410.0, make_backend(part), _surface_tree(part), 20.0)
+    args = (part, SENSOR, 410.0, make_backend(part), lambda: _surface_tree(part), 20.0)
     return tiles(*args, STANDOFF_MARGIN**2, **kw)
 
 

@@ -31,6 +31,7 @@ than the depth of field allows.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -133,7 +134,7 @@ def generate(
         views = fitted(views, sensor, surface_samples(part), standoff)
     laid = make_viewpoints(np.zeros((0, 3)), np.zeros((0, 3)))
     if settings.tiles:
-        tree = _surface_tree(part)
+        tree = functools.cache(lambda: _surface_tree(part))  # built where a tile is placed
         limit = settings.count // TILE_SHARE
         stretch = STANDOFF_MARGIN**2  # a tilted frame's reach at the default stand-off
         laid = tiles(

@@ -22,6 +22,7 @@ well by the tilted candidates, and tiles there lead the cover's greedy start ast
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -110,7 +111,7 @@ def tiles(
     sensor: Sensor,
     standoff_mm: float,
     backend: RayBackend,
-    clearance: cKDTree,
+    clearance: Callable[[], cKDTree],
     clearance_mm: float,
     stretch: float,
     allowed: Allowed | None = None,
@@ -119,10 +120,12 @@ def tiles(
     """Head-on cameras at `standoff_mm` tiling each facet of the part longer than two frames
     `stretch`ed along their width (module docstring), largest facets first, at most `limit`
     cameras (a facet whose grid has more cells than are left gets none: a face a hundred
-    metres across is not sampled cell by cell); `clearance` a KD-tree of points on the part
-    for the `clearance_mm` test."""
-    mesh = part.trimesh()
+    metres across is not sampled cell by cell); `clearance()` a KD-tree of points on the part
+    for the `clearance_mm` test (asked for only where a camera is placed)."""
     frame = (standoff_mm * sensor.width_px / sensor.fx, standoff_mm * sensor.height_px / sensor.fy)
+    if _span(part.vertices) <= 2 * stretch * max(frame):  # no face of it is that long
+        return make_viewpoints(np.zeros((0, 3)), np.zeros((0, 3)))
+    mesh = part.trimesh()
     rng = np.random.default_rng(0)
     left = math.inf if limit is None else limit
     found: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
@@ -132,7 +135,7 @@ def tiles(
             continue
         points = _samples(mesh, f, na * nb, rng)
         for cam, gaze, up in _cells(f, frame, standoff_mm, points, backend):
-            if clearance.query(cam)[0] >= clearance_mm and (
+            if clearance().query(cam)[0] >= clearance_mm and (
                 allowed is None or allowed(cam[None])[0]
             ):
                 found.append((cam, gaze, up))

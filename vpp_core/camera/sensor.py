@@ -72,6 +72,11 @@ class Sensor(BaseModel):
         half-height per mm of depth."""
         return self.width_px / (2 * self.fx), self.height_px / (2 * self.fy)
 
+    def frame_mm(self, depth_mm: float) -> tuple[float, float]:
+        """Width and height (mm) of the frame on a plane facing the camera `depth_mm` away."""
+        tx, ty = self.half_tangents
+        return 2 * depth_mm * tx, 2 * depth_mm * ty
+
     @property
     def n_pixels(self) -> int:
         """Rays per view."""

@@ -122,51 +122,40 @@ def tiles(
     cameras (a facet whose grid has more cells than are left gets none: a face a hundred
     metres across is not sampled cell by cell); `clearance()` a KD-tree of points on the part
     for the `clearance_mm` test (asked for only where a camera is placed)."""
-    frame = (standoff_mm * sensor.width_px / sensor.fx, standoff_mm * sensor.height_px / sensor.fy)
-    if _span(part.vertices) <= 2 * stretch * max(frame):  # no face of it is that long
-        return make_viewpoints(np.zeros((0, 3)), np.zeros((0, 3)))
-    mesh = part.trimesh()
-    rng = np.random.default_rng(0)
-    left = math.inf if limit is None else limit
+    frame = sensor.frame_mm(standoff_mm)
+    longest = 2 * stretch * max(frame)  # what two stretched frames span
+    left, rng = math.inf if limit is None else limit, np.random.default_rng(0)
     found: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
-    for f in _large(part, mesh, frame, stretch):
-        na, nb, _ = grid(f.extents, frame)
-        if na * nb > left:  # a face is tiled whole or not at all
+    large = _large(part, longest) if _span(part.vertices) > longest else []  # else none is
+    for f in large:
+        cells = grid(f.extents, frame)
+        if cells[0] * cells[1] > left:  # a face is tiled whole or not at all
             continue
-        points = _samples(mesh, f, na * nb, rng)
-        for cam, gaze, up in _cells(f, frame, standoff_mm, points, backend):
+        points = _samples(part, f, cells[0] * cells[1], rng)
+        for cam, gaze, up in _cells(f, frame, cells, standoff_mm, points, backend):
             if clearance().query(cam)[0] >= clearance_mm and (
                 allowed is None or allowed(cam[None])[0]
             ):
                 found.append((cam, gaze, up))
                 left -= 1
-    if not found:
-        return make_viewpoints(np.zeros((0, 3)), np.zeros((0, 3)))
-    cams, gazes, ups = zip(*found, strict=True)
-    return make_viewpoints(np.array(cams), np.array(gazes), np.array(ups))
+    cams, gazes, ups = (np.array([t[k] for t in found]).reshape(-1, 3) for k in range(3))
+    return make_viewpoints(cams, gazes, ups)
 
 
-def _large(
-    part: Part, mesh: trimesh.Trimesh, frame: tuple[float, float], stretch: float
-) -> list[Facet]:
-    """The part's facets of counted faces longer than two frames `stretch`ed along their
-    width, the largest (by area) first."""
-    out = []
-    for faces in facets(mesh, 2 * stretch * max(frame)):
+def _large(part: Part, longest_mm: float) -> list[Facet]:
+    """The part's facets of counted faces whose rectangle is longer than `longest_mm`, the
+    largest (by area) first."""
+    mesh, out = part.trimesh(), []
+    for faces in facets(mesh, longest_mm):
         counted = faces[part.counted[faces]]
-        if len(counted) and not _fits((f := facet(mesh, counted)).extents, frame, stretch):
+        if len(counted) and max((f := facet(mesh, counted)).extents) > longest_mm:
             out.append(f)
-    return sorted(out, key=lambda f: -float(mesh.area_faces[f.faces].sum()))
+    return sorted(out, key=lambda f: -float(part.areas[f.faces].sum()))
 
 
-def _fits(extents: tuple[float, float], frame: tuple[float, float], stretch: float) -> bool:
-    """Whether two frames `stretch`ed along their width span a rectangle of `extents`."""
-    return max(extents) <= 2 * stretch * max(frame)
-
-
-def _samples(mesh: trimesh.Trimesh, f: Facet, cells: int, rng: np.random.Generator) -> np.ndarray:
+def _samples(part: Part, f: Facet, cells: int, rng: np.random.Generator) -> np.ndarray:
     """(k, 3) points on the facet, SAMPLES_PER_FRAME per cell of its grid, and its corners."""
-    sub = trimesh.Trimesh(mesh.vertices, mesh.faces[f.faces], process=False)
+    sub = trimesh.Trimesh(part.vertices, part.faces[f.faces], process=False)
     points, _ = trimesh.sample.sample_surface(sub, SAMPLES_PER_FRAME * cells, seed=rng)
     return np.vstack([points, sub.vertices[np.unique(sub.faces)]])
 
@@ -174,13 +163,14 @@ def _samples(mesh: trimesh.Trimesh, f: Facet, cells: int, rng: np.random.Generat
 def _cells(
     f: Facet,
     frame: tuple[float, float],
+    cells: tuple[int, int, bool],
     standoff: float,
     points: np.ndarray,
     backend: RayBackend,
 ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
-    """(camera, gaze, up) of each grid cell over the facet whose frame holds some of
-    `points` (on the facet) with a clear line of sight to one of them from its camera."""
-    na, nb, swap = grid(f.extents, frame)
+    """(camera, gaze, up) of each cell of the grid `cells` (grid()) over the facet whose frame
+    holds some of `points` (on the facet) with a clear line of sight to one of them."""
+    na, nb, swap = cells
     width, height = (frame[1], frame[0]) if swap else frame
     a, b = f.axes
     xy = (points - f.centre) @ np.stack([a, b], axis=1)

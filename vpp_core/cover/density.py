@@ -135,11 +135,12 @@ def seen_share(counts: sp.csr_array, patches: Patches, cameras: Cameras) -> np.n
     `counts` (P, N): min(1, R_pj / (ρ_pj A_p)), ρ_pj the view's ray density on the patch's
     plane (Cameras.ray_density at its centre and mean normal); the patch's largest share u_p
     where R_pj falls short of u_p N by at most GRID · sqrt(N) rays (N = ρ_pj A_p)."""
-    rows = np.repeat(np.arange(counts.shape[0]), np.diff(counts.indptr))
+    per_row = np.diff(counts.indptr)
+    rows = np.repeat(np.arange(counts.shape[0]), per_row)
     rho = cameras.ray_density(patches.centres[rows], patches.normals[rows], counts.indices)
     whole = rho * patches.areas[rows]
     share = np.minimum(np.divide(counts.data, whole, out=np.ones(len(rows)), where=whole > 0), 1)
-    best = np.repeat(reach(counts.indptr, share), np.diff(counts.indptr))
+    best = np.repeat(reach(counts.indptr, share), per_row)
     grid = counts.data >= best * whole - GRID * np.sqrt(whole)  # as much, but for the grid
     return np.asarray(np.where(grid, best, share))
 

@@ -348,8 +348,7 @@ def _size_hint(part: Part, sensor: Sensor, candidates: int) -> str | None:
     head-on at the far end of the depth of field, where a frame is largest: a part in the
     wrong units (a file in mm read as m has a million times its area; a plan of it is
     meaningless, every view a speck on one face), or too few candidates for its size."""
-    w = sensor.far_mm * sensor.width_px / sensor.fx  # the frame (mm) at the far limit
-    h = sensor.far_mm * sensor.height_px / sensor.fy
+    w, h = sensor.frame_mm(sensor.far_mm)  # the largest frame, at the far limit
     area, framed = part.area_mm2, candidates * w * h
     if candidates <= 0 or area <= framed:
         return None
